@@ -1,0 +1,319 @@
+"""Shared plumbing for the real-data loaders (KITTI, EuRoC, TUM).
+
+Kept in one place so every loader reports bad input the same way: one lowercase line, a
+``DatasetError`` (or ``ConfigError`` for a bad knob), saying what was expected and what was found.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+
+from bench.errors import ConfigError, DatasetError
+
+REPO = Path(__file__).resolve().parents[2]
+_LOG = logging.getLogger("bench.datasets")
+
+
+def plain_cfg(cfg: Mapping[str, Any]) -> dict[str, Any]:
+    """A plain ``dict`` copy of ``cfg`` (OmegaConf ``DictConfig`` resolved), so loaders never mutate it."""
+    try:
+        from omegaconf import DictConfig, OmegaConf
+
+        if isinstance(cfg, DictConfig):
+            return dict(OmegaConf.to_container(cfg, resolve=True))  # type: ignore[arg-type]
+    except ImportError:  # pragma: no cover - hydra-core is a dependency
+        pass
+    return dict(cfg)
+
+
+def readme(dataset: str) -> str:
+    return f"see datasets/{dataset}/README.md"
+
+
+def seq_name(cfg: Mapping[str, Any]) -> str:
+    """``cfg['seq']``, or the yaml's ``default_seq`` when it is None/empty."""
+    seq = cfg.get("seq")
+    if seq is None or str(seq).strip() == "":
+        seq = cfg.get("default_seq")
+    if seq is None or str(seq).strip() == "":
+        raise ConfigError(f"{cfg.get('name', 'dataset')}: expected a sequence in seq or default_seq, found none")
+    return str(seq).strip()
+
+
+def get_int(cfg: Mapping[str, Any], key: str, default: int | None, dataset: str, minimum: int = 0) -> int | None:
+    value = cfg.get(key, default)
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ConfigError(f"{dataset} {key}: expected an integer >= {minimum}, found {value!r}")
+    return int(value)
+
+
+def get_float(
+    cfg: Mapping[str, Any], key: str, default: float | None, dataset: str, allow_none: bool = True
+) -> float | None:
+    value = cfg.get(key, default)
+    if value is None and allow_none:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) or value <= 0:
+        raise ConfigError(f"{dataset} {key}: expected a positive number, found {value!r}")
+    return float(value)
+
+
+def listing(path: Path, limit: int = 12) -> str:
+    """Comma-separated contents of ``path`` for error messages ("(empty)" / "(missing)")."""
+    if not path.is_dir():
+        return "(missing)"
+    names = sorted(p.name for p in path.iterdir() if not p.name.startswith("."))
+    if not names:
+        return "(empty)"
+    more = f", ... ({len(names) - limit} more)" if len(names) > limit else ""
+    return ", ".join(names[:limit]) + more
+
+
+def resolve_root(dataset: str, root: Any) -> Path:
+    """The dataset root as an absolute path; relative roots are tried against cwd, then the repo."""
+    if root is None or str(root).strip() == "":
+        raise ConfigError(f"{dataset} root: expected a directory path (dataset.root=...), found none")
+    raw = Path(str(root)).expanduser()
+    candidates = [raw] if raw.is_absolute() else [Path.cwd() / raw, REPO / raw]
+    for cand in candidates:
+        if cand.is_dir():
+            return cand.resolve()
+    tried = " or ".join(str(c) for c in dict.fromkeys(candidates))
+    parent = candidates[0].parent
+    raise DatasetError(
+        f"{dataset} root not found: expected a directory at {tried} (dataset.root={root}); "
+        f"found nothing there ({parent} has: {listing(parent)}); {readme(dataset)}"
+    )
+
+
+def read_image(path: Path, dataset: str, mode: str) -> np.ndarray:
+    """Read a PNG as uint8 ``gray`` [H, W], uint8 ``color`` BGR [H, W, 3] or raw ``unchanged``."""
+    flags = {
+        "gray": cv2.IMREAD_GRAYSCALE,
+        "color": cv2.IMREAD_COLOR,
+        "unchanged": cv2.IMREAD_UNCHANGED,
+    }[mode]
+    if not path.is_file():
+        raise DatasetError(f"{dataset} image missing: expected a file at {path}, found nothing")
+    img = cv2.imread(str(path), flags)
+    if img is None or img.size == 0:
+        raise DatasetError(
+            f"{dataset} image unreadable: expected a decodable image at {path}, "
+            f"found {path.stat().st_size} bytes opencv cannot decode"
+        )
+    return img
+
+
+def check_size(img: np.ndarray, path: Path, width: int, height: int, dataset: str) -> None:
+    if img.shape[0] != height or img.shape[1] != width:
+        raise DatasetError(
+            f"{dataset} image {path}: expected {width}x{height} (the calibrated size), "
+            f"found {img.shape[1]}x{img.shape[0]}"
+        )
+
+
+def rgb_tensor(img: np.ndarray, downscale: int) -> torch.Tensor:
+    """uint8 gray [H, W] or BGR [H, W, 3] -> float32 RGB [h, w, 3] in [0, 1], area-downscaled."""
+    img = downscale_image(img, downscale)
+    if img.ndim == 2:
+        img = np.repeat(img[:, :, None], 3, axis=2)
+    else:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return torch.from_numpy(np.ascontiguousarray(img)).float().div_(255.0)
+
+
+def downscaled_size(width: int, height: int, factor: int) -> tuple[int, int]:
+    """Delivered (width, height): trailing pixels that do not fill a whole block are cropped."""
+    return width // factor, height // factor
+
+
+def downscale_image(img: np.ndarray, factor: int) -> np.ndarray:
+    """Block-average by an integer factor (crop to a multiple, then INTER_AREA: exact block means)."""
+    if factor == 1:
+        return img
+    w, h = downscaled_size(img.shape[1], img.shape[0], factor)
+    img = img[: h * factor, : w * factor]
+    return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+
+
+def downscale_depth(depth_m: np.ndarray, factor: int, min_valid_fraction: float = 0.5) -> np.ndarray:
+    """Valid-aware depth downscale: lower median of the valid pixels of each factor x factor block.
+
+    Averaging would invent "flying" depths across object edges and drag in the zeros of invalid
+    pixels; the lower median is always a measured value. A block with fewer than
+    ``min_valid_fraction`` valid pixels becomes invalid (0).
+    """
+    if factor == 1:
+        return depth_m.astype(np.float32, copy=False)
+    w, h = downscaled_size(depth_m.shape[1], depth_m.shape[0], factor)
+    d = depth_m[: h * factor, : w * factor].astype(np.float32, copy=False)
+    blocks = d.reshape(h, factor, w, factor).transpose(0, 2, 1, 3).reshape(h, w, factor * factor)
+    valid = blocks > 0
+    n_valid = valid.sum(axis=2)  # [h, w]
+    ordered = np.sort(np.where(valid, blocks, np.inf), axis=2)  # invalid sorts last
+    idx = np.clip((n_valid - 1) // 2, 0, None)[:, :, None]
+    out = np.take_along_axis(ordered, idx, axis=2)[:, :, 0]  # [h, w]
+    out[n_valid < max(1, int(np.ceil(min_valid_fraction * factor * factor)))] = 0.0
+    return out.astype(np.float32)
+
+
+def scale_K(K: np.ndarray, factor: int) -> np.ndarray:
+    """Intrinsics [3, 3] after block-downscaling: pixel centres map as u' = (u + 0.5) / f - 0.5."""
+    K = np.asarray(K, dtype=np.float64).copy()
+    if factor == 1:
+        return K
+    K[0, 0] /= factor
+    K[1, 1] /= factor
+    K[0, 2] = (K[0, 2] + 0.5) / factor - 0.5
+    K[1, 2] = (K[1, 2] + 0.5) / factor - 0.5
+    return K
+
+
+def select(n: int, cfg: Mapping[str, Any], dataset: str, log: logging.Logger) -> np.ndarray:
+    """Indices picked by ``first``, ``last`` (inclusive, null = end) and ``stride`` out of ``n`` frames."""
+    first = get_int(cfg, "first", 0, dataset) or 0
+    last = get_int(cfg, "last", None, dataset)
+    stride = get_int(cfg, "stride", 1, dataset, minimum=1) or 1
+    if n == 0:
+        raise DatasetError(f"{dataset}: expected at least one frame, found none")
+    if first >= n:
+        raise ConfigError(f"{dataset} first={first}: expected a frame index below {n}, the sequence length")
+    if last is None:
+        last = n - 1
+    elif last >= n:
+        log.warning("%s last=%d is past the end; clipping to %d (sequence has %d frames)", dataset, last, n - 1, n)
+        last = n - 1
+    if last < first:
+        raise ConfigError(f"{dataset} frame range: expected first <= last, found first={first} last={last}")
+    return np.arange(first, last + 1, stride)
+
+
+def quat_wxyz_to_rot(q: np.ndarray) -> np.ndarray:
+    """Unit quaternions [N, 4] (w, x, y, z) -> rotations [N, 3, 3] (normalised first)."""
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+
+
+def poses_from_tq(t: np.ndarray, q_wxyz: np.ndarray, path: Path, dataset: str) -> np.ndarray:
+    """Translations [N, 3] + quaternions [N, 4] -> [N, 4, 4] float64; rejects zero-norm quaternions."""
+    norms = np.linalg.norm(q_wxyz, axis=1)
+    bad = np.flatnonzero(~(norms > 1e-6))
+    if bad.size:
+        raise DatasetError(
+            f"{dataset} ground truth {path}: expected unit quaternions, found norm {norms[bad[0]]:g} in pose {bad[0]}"
+        )
+    T = np.tile(np.eye(4), (len(t), 1, 1))
+    T[:, :3, :3] = quat_wxyz_to_rot(q_wxyz)
+    T[:, :3, 3] = t
+    return T
+
+
+def check_finite_rows(
+    values: np.ndarray, path: Path, dataset: str, what: str, line_numbers: list[int] | None = None
+) -> None:
+    """Raise on the first row [N, D] holding nan/inf, naming its line (row i is line i + 1 by default)."""
+    bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
+    if bad.size:
+        row = values[bad[0]]
+        found = ", ".join(f"{v:g}" for v in row[~np.isfinite(row)][:3])
+        line = line_numbers[bad[0]] if line_numbers is not None else bad[0] + 1
+        raise DatasetError(f"{dataset} {what} {path} line {line}: expected finite numbers, found {found}")
+
+
+def associate_nearest(query_s: np.ndarray, ref_s: np.ndarray, max_diff_s: float) -> np.ndarray:
+    """For each query time, the index of the nearest reference time within ``max_diff_s`` (else -1)."""
+    if len(ref_s) == 0:
+        return np.full(len(query_s), -1, dtype=np.int64)
+    order = np.argsort(ref_s, kind="stable")
+    ref_sorted = ref_s[order]
+    pos = np.searchsorted(ref_sorted, query_s)
+    lo = np.clip(pos - 1, 0, len(ref_sorted) - 1)
+    hi = np.clip(pos, 0, len(ref_sorted) - 1)
+    pick = np.where(np.abs(ref_sorted[lo] - query_s) <= np.abs(ref_sorted[hi] - query_s), lo, hi)
+    out = order[pick]
+    out[np.abs(ref_s[out] - query_s) > max_diff_s] = -1
+    return out
+
+
+def associate_greedy(a_s: np.ndarray, b_s: np.ndarray, max_diff_s: float) -> list[tuple[int, int]]:
+    """TUM ``associate.py``: one-to-one pairs, closest first, |a - b| < max_diff_s; sorted by a.
+
+    Candidates come from a sorted window per ``a`` instead of all N x M differences.
+    """
+    order = np.argsort(b_s, kind="stable")
+    b_sorted = b_s[order]
+    lo = np.searchsorted(b_sorted, a_s - max_diff_s, side="left")
+    hi = np.searchsorted(b_sorted, a_s + max_diff_s, side="right")
+    cands: list[tuple[float, int, int]] = []
+    for ia in range(len(a_s)):
+        for k in range(lo[ia], hi[ia]):
+            diff = abs(a_s[ia] - b_sorted[k])
+            if diff < max_diff_s:
+                cands.append((diff, ia, int(order[k])))
+    cands.sort()
+    used_a: set[int] = set()
+    used_b: set[int] = set()
+    pairs = []
+    for _, ia, ib in cands:
+        if ia not in used_a and ib not in used_b:
+            used_a.add(ia)
+            used_b.add(ib)
+            pairs.append((ia, ib))
+    pairs.sort()
+    return pairs
+
+
+def apply_gt_policy(
+    assoc: np.ndarray,
+    times_s: np.ndarray,
+    cfg: Mapping[str, Any],
+    dataset: str,
+    gt_path: Path,
+    log: logging.Logger,
+) -> np.ndarray:
+    """Keep mask [N] for frames given their gt association (-1 = none), per ``gt_missing``.
+
+    ``drop`` (default) removes frames with no ground-truth pose within ``gt_max_diff_s``
+    (real EuRoC/TUM ground truth often starts after, or ends before, the cameras) and logs how
+    many; ``error`` raises instead. Either way every delivered frame has a pose.
+    """
+    policy = str(cfg.get("gt_missing", "drop"))
+    if policy not in ("drop", "error"):
+        raise ConfigError(f"{dataset} gt_missing: expected 'drop' or 'error', found {policy!r}")
+    keep = assoc >= 0
+    n_miss = int((~keep).sum())
+    if n_miss == 0:
+        return keep
+    max_diff = cfg.get("gt_max_diff_s", 0.02)
+    first_t = times_s[~keep][0]
+    if policy == "error" or n_miss == len(keep):
+        raise DatasetError(
+            f"{dataset} ground truth {gt_path}: expected a pose within {max_diff} s of every frame, "
+            f"found none for {n_miss} of {len(keep)} frames (first at t={first_t:.6f} s)"
+        )
+    log.warning(
+        "%s: dropping %d of %d frames with no ground-truth pose within %s s (first at t=%.6f s)",
+        dataset,
+        n_miss,
+        len(keep),
+        max_diff,
+        first_t,
+    )
+    return keep

@@ -1,0 +1,31 @@
+"""One exception family, so the CLI can print known failures as a single line.
+
+Messages are lowercase and state what was expected and what was found (evo's style).
+Anything that is not a ``BenchError`` is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+
+class BenchError(Exception):
+    """Base of every error the harness raises on purpose."""
+
+
+class ConfigError(BenchError):
+    """A config value is missing, of the wrong type or out of range."""
+
+
+class DatasetError(BenchError):
+    """A dataset is missing, laid out wrongly, or holds malformed files."""
+
+
+class StrategyError(BenchError):
+    """A pruning strategy is unknown, fails to load, or breaks the contract."""
+
+
+class MetricError(BenchError):
+    """A metric cannot be computed from the inputs it was given."""
+
+
+class TrackingLost(BenchError):
+    """Tracking diverged; the run ends with status ``lost`` and keeps its partial results."""

@@ -1,0 +1,200 @@
+"""Trajectory accuracy through evo, so ATE figures match what the field publishes.
+
+Association, Umeyama alignment and the error statistics are evo's own code
+(``associate_trajectories``, ``PosePath3D.align``, ``metrics.APE``/``RPE``); this module only
+converts types, validates inputs and turns failures into one-line ``MetricError``s. Argument
+order follows ``evo_ape tum GT EST -a``: the ground truth is the reference and the estimate is
+aligned onto it, which is what the published peer figure (fr2/desk, 0.008119 m) was made with.
+
+TUM files are ``timestamp tx ty tz qx qy qz qw`` (quaternion x, y, z, w on disk); in memory the
+quaternion is w, x, y, z like evo.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from evo.core import metrics, sync
+from evo.core.trajectory import PoseTrajectory3D
+from evo.core.transformations import quaternion_from_matrix
+
+from bench.errors import MetricError
+
+ALIGNMENTS = ("se3", "sim3", "none")
+MIN_POSES = 3  # Umeyama needs 3 non-collinear points; fewer is not a trajectory error
+
+
+@dataclass
+class Trajectory:
+    """Timestamped camera-to-world poses (positions in metres, unit quaternions)."""
+
+    timestamps_s: np.ndarray  # [N] float64
+    positions_m: np.ndarray  # [N, 3] float64
+    quat_wxyz: np.ndarray  # [N, 4] float64, w first
+
+    def __post_init__(self) -> None:
+        self.timestamps_s = np.asarray(self.timestamps_s, dtype=np.float64).reshape(-1)
+        self.positions_m = np.asarray(self.positions_m, dtype=np.float64)
+        self.quat_wxyz = np.asarray(self.quat_wxyz, dtype=np.float64)
+        n = self.timestamps_s.shape[0]
+        if self.positions_m.shape != (n, 3) or self.quat_wxyz.shape != (n, 4):
+            raise MetricError(
+                f"trajectory shapes disagree: expected timestamps [n], positions [n, 3], "
+                f"quaternions [n, 4] with one n; found {list(self.timestamps_s.shape)}, "
+                f"{list(self.positions_m.shape)}, {list(self.quat_wxyz.shape)}"
+            )
+        for name, arr in (
+            ("timestamps", self.timestamps_s),
+            ("positions", self.positions_m),
+            ("quaternions", self.quat_wxyz),
+        ):
+            if not np.all(np.isfinite(arr)):
+                bad = int(np.argwhere(~np.isfinite(arr.reshape(n, -1)).all(axis=1))[0, 0])
+                raise MetricError(f"trajectory {name} must be finite: found a non-finite value at pose {bad}")
+
+    def __len__(self) -> int:
+        return int(self.timestamps_s.shape[0])
+
+    @classmethod
+    def from_c2w(cls, timestamps_s: np.ndarray, c2w: np.ndarray) -> Trajectory:
+        """Build from camera-to-world matrices ``[N, 4, 4]`` (the SLAM loop's native form)."""
+        c2w = np.asarray(c2w, dtype=np.float64)  # [N, 4, 4]
+        if c2w.ndim != 3 or c2w.shape[1:] != (4, 4):
+            raise MetricError(f"poses must be [n, 4, 4] camera-to-world matrices: found {list(c2w.shape)}")
+        quats = np.stack([quaternion_from_matrix(p) for p in c2w]) if len(c2w) else np.zeros((0, 4))
+        return cls(np.asarray(timestamps_s), c2w[:, :3, 3], quats)
+
+    def to_evo(self, name: str | None = None) -> PoseTrajectory3D:
+        if len(self) == 0:
+            raise MetricError("trajectory is empty: expected at least one pose, found 0")
+        return PoseTrajectory3D(
+            positions_xyz=self.positions_m.copy(),
+            orientations_quat_wxyz=self.quat_wxyz.copy(),
+            timestamps=self.timestamps_s.copy(),
+            name=name,
+        )
+
+
+def read_tum(path: str | Path) -> Trajectory:
+    """Read a TUM trajectory; comments (``#``) and blank lines are skipped, commas accepted."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise MetricError(f"cannot read trajectory {path}: {exc.strerror or exc}") from None
+    rows: list[list[float]] = []
+    for lineno, raw in enumerate(text.splitlines(), start=1):
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        fields = line.replace(",", " ").split()
+        if len(fields) != 8:
+            raise MetricError(
+                f"{path}:{lineno}: expected 8 fields 'timestamp tx ty tz qx qy qz qw', found {len(fields)}"
+            )
+        try:
+            values = [float(f) for f in fields]
+        except ValueError:
+            raise MetricError(f"{path}:{lineno}: expected 8 numbers, found {line[:80]!r}") from None
+        if not all(math.isfinite(v) for v in values):
+            raise MetricError(f"{path}:{lineno}: expected finite numbers, found {line[:80]!r}")
+        if math.hypot(*values[4:8]) < 1e-12:
+            raise MetricError(f"{path}:{lineno}: expected a unit quaternion, found a zero quaternion")
+        rows.append(values)
+    if not rows:
+        raise MetricError(f"{path}: expected TUM poses 'timestamp tx ty tz qx qy qz qw', found none")
+    data = np.asarray(rows, dtype=np.float64)  # [N, 8]
+    quat_wxyz = data[:, [7, 4, 5, 6]]  # file order is x y z w
+    return Trajectory(data[:, 0], data[:, 1:4], quat_wxyz)
+
+
+def write_tum(path: str | Path, traj: Trajectory) -> None:
+    """Write ``timestamp tx ty tz qx qy qz qw`` lines; full precision so a round trip is exact."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    q = traj.quat_wxyz
+    with path.open("w") as f:
+        f.write("# timestamp tx ty tz qx qy qz qw\n")
+        for t, p, (w, x, y, z) in zip(traj.timestamps_s, traj.positions_m, q, strict=True):
+            f.write(f"{t:.9f} {p[0]:.17g} {p[1]:.17g} {p[2]:.17g} {x:.17g} {y:.17g} {z:.17g} {w:.17g}\n")
+
+
+def _associate_align(
+    est: Trajectory, gt: Trajectory, align: str, max_diff_s: float
+) -> tuple[PoseTrajectory3D, PoseTrajectory3D]:
+    """Associate by nearest timestamp and align ``est`` onto ``gt``; returns (gt, est) evo copies."""
+    if align not in ALIGNMENTS:
+        raise MetricError(f"unknown alignment: expected one of {', '.join(ALIGNMENTS)}, found {align!r}")
+    if not max_diff_s > 0:
+        raise MetricError(f"max timestamp difference must be > 0 s: found {max_diff_s}")
+    traj_ref, traj_est = gt.to_evo("ground truth"), est.to_evo("estimate")
+    try:
+        traj_ref, traj_est = sync.associate_trajectories(traj_ref, traj_est, max_diff=max_diff_s)
+        count = traj_ref.num_poses
+    except sync.SyncException:
+        count = 0
+    if count < MIN_POSES:
+        raise MetricError(
+            f"too few associated poses: expected at least {MIN_POSES}, found {count} "
+            f"(max timestamp difference {max_diff_s} s; estimate {len(est)} poses, ground truth {len(gt)})"
+        )
+    traj_est = copy.deepcopy(traj_est)
+    if align != "none":
+        try:
+            traj_est.align(traj_ref, correct_scale=(align == "sim3"))
+        except Exception as exc:  # evo's GeometryException / numpy LinAlgError on degenerate input
+            raise MetricError(
+                f"{align} alignment failed on {count} poses: {str(exc).splitlines()[0].lower()}"
+            ) from None
+    return traj_ref, traj_est
+
+
+def ate(est: Trajectory, gt: Trajectory, align: str = "se3", max_diff_s: float = 0.01) -> dict:
+    """Absolute trajectory error (translation part) after ``se3``/``sim3``/``none`` alignment.
+
+    ``sim3`` is for monocular-scale estimates; ``se3`` matches the TUM/evo convention.
+    """
+    traj_ref, traj_est = _associate_align(est, gt, align, max_diff_s)
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((traj_ref, traj_est))
+    return {
+        "ate_rmse_m": float(ape.get_statistic(metrics.StatisticsType.rmse)),
+        "ate_mean_m": float(ape.get_statistic(metrics.StatisticsType.mean)),
+        "ate_max_m": float(ape.get_statistic(metrics.StatisticsType.max)),
+        "ate_alignment": align,
+        "ate_num_poses": int(traj_ref.num_poses),
+        "ate_max_diff_s": float(max_diff_s),
+    }
+
+
+def rpe(
+    est: Trajectory, gt: Trajectory, align: str = "se3", max_diff_s: float = 0.01, delta_frames: int = 1
+) -> dict:
+    """Relative pose error between poses ``delta_frames`` apart (drift per step).
+
+    Rigid alignment does not change RPE; ``sim3`` matters because it fixes the scale first.
+    """
+    if delta_frames < 1:
+        raise MetricError(f"rpe delta must be >= 1 frame: found {delta_frames}")
+    traj_ref, traj_est = _associate_align(est, gt, align, max_diff_s)
+    if traj_ref.num_poses <= delta_frames:
+        raise MetricError(
+            f"too few associated poses for rpe: expected more than {delta_frames}, found {traj_ref.num_poses}"
+        )
+    out: dict = {}
+    for key, relation in (
+        ("rpe_trans_rmse_m", metrics.PoseRelation.translation_part),
+        ("rpe_rot_rmse_deg", metrics.PoseRelation.rotation_angle_deg),
+    ):
+        m = metrics.RPE(relation, delta=delta_frames, delta_unit=metrics.Unit.frames, all_pairs=False)
+        m.process_data((traj_ref, traj_est))
+        out[key] = float(m.get_statistic(metrics.StatisticsType.rmse))
+    out["rpe_delta_frames"] = int(delta_frames)
+    return out
+
+
+__all__ = ["Trajectory", "ate", "read_tum", "rpe", "write_tum"]

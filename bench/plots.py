@@ -1,0 +1,58 @@
+"""Per-run figures and arrays written beside metrics.json (the report makes cross-run ones)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+
+def memory_timeline(path: Path, windows: list[dict[str, Any]], title: str = "") -> None:
+    """Gaussian count and peak-memory figures per keyframe window against frame index (paper Fig. 5)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    if windows:
+        frames = [w["frame"] for w in windows]
+        for key, style in (
+            ("torch_live_peak_mib", "-o"),
+            ("cuda_alloc_peak_mib", "-s"),
+            ("cpu_rss_peak_mib", "--"),
+            ("state_mib", "-^"),
+        ):
+            vals = [w.get(key) for w in windows]
+            if any(v is not None for v in vals):
+                ax.plot(frames, [np.nan if v is None else v for v in vals], style, ms=3, label=key)
+        ax2 = ax.twinx()
+        ax2.plot(frames, [w["n_gaussians"] for w in windows], ":", color="gray", label="n_gaussians")
+        ax2.set_ylabel("Gaussians")
+        ax2.legend(loc="lower right", fontsize=7)
+    ax.set_xlabel("frame")
+    ax.set_ylabel("MiB (peak per keyframe window)")
+    ax.set_yscale("log")
+    ax.legend(loc="upper left", fontsize=7)
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+@torch.no_grad()
+def write_density(path: Path, system, est_c2w: list[torch.Tensor], seq) -> None:
+    """Histogram [H, W] of the final map's projected centres at the last keyframe's pose (paper Fig. 4)."""
+    if not system.keyframes:
+        return
+    kf = system.keyframes[-1]
+    out = system.render(kf.w2c)
+    m2 = out.means2d
+    ok = (out.depths > 0) & (m2[:, 0] >= 0) & (m2[:, 0] < system.W) & (m2[:, 1] >= 0) & (m2[:, 1] < system.H)
+    u = m2[ok, 0].long().cpu().numpy()
+    v = m2[ok, 1].long().cpu().numpy()
+    counts = np.zeros((system.H, system.W), dtype=np.int32)
+    np.add.at(counts, (v, u), 1)
+    np.savez_compressed(path, counts=counts, image=kf.rgb.cpu().numpy(), frame=kf.index)

@@ -1,0 +1,44 @@
+"""CLI: ``python -m bench.report SWEEP_DIR [...] --out reports/NAME [--paper] [--baseline none]``.
+
+Known failures (``BenchError``) print one line and exit 2; anything else is a bug and keeps its
+traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from bench.errors import BenchError
+from bench.report.build import make_report
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog="python -m bench.report",
+        description="Tables (CSV, LaTeX, Markdown) and figures from SLAM run dirs.",
+    )
+    parser.add_argument("dirs", nargs="+", type=Path, help="sweep or run dirs, searched recursively")
+    parser.add_argument("--out", required=True, type=Path, help="output dir, e.g. reports/NAME")
+    parser.add_argument("--paper", action="store_true", help="add the paper's figures as '(paper)' rows")
+    parser.add_argument("--baseline", default="none", help="strategy the relative columns compare with")
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    try:
+        result = make_report(args.dirs, args.out, paper=args.paper, baseline=args.baseline)
+    except BenchError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    for warning in result.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    skipped = f", {len(result.skipped)} malformed skipped" if result.skipped else ""
+    print(f"{len(result.runs)} runs{skipped}: wrote {len(result.files)} files to {result.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

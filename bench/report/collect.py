@@ -1,0 +1,177 @@
+"""Find run dirs under sweep dirs and flatten each metrics.json into one tidy row.
+
+A sweep nests runs anywhere (Hydra's ``multirun/DATE/TIME/N/``), so any dir holding
+``metrics.json`` is a run. A malformed run is skipped with a warning rather than aborting the
+report: one crashed job must not hide the rest of a sweep.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from bench.errors import BenchError
+from bench.report.names import method_name
+
+STATUSES: tuple[str, ...] = ("ok", "lost", "failed", "running")
+RUN_KEYS: tuple[str, ...] = ("strategy", "dataset", "seq", "seed", "keep_ratio", "config_hash")
+REQUIRED_RUN_KEYS: tuple[str, ...] = ("strategy", "dataset", "seq")
+# Known metrics in the harness's order; unknown numeric metrics are kept and appended.
+METRIC_KEYS: tuple[str, ...] = (
+    "ate_rmse_m", "ate_alignment", "ate_num_poses", "psnr_db", "ssim", "lpips", "eval_frames",
+    "fps", "slam_wall_s", "num_frames", "num_keyframes", "gaussians_final", "gaussians_peak",
+    "state_peak_mib", "cpu_rss_peak_mib", "torch_live_peak_mib", "cuda_alloc_peak_mib",
+    "cuda_reserved_peak_mib", "peak_mem_mib",
+)  # fmt: skip
+TEXT_METRICS: frozenset[str] = frozenset({"ate_alignment"})
+
+
+class ReportError(BenchError):
+    """Report inputs are missing or malformed (no run dirs, bad metrics.json, bad arguments)."""
+
+
+@dataclass
+class Collection:
+    """Every run found: usable ones as rows, malformed ones with the reason they were skipped."""
+
+    runs: pd.DataFrame
+    skipped: list[tuple[Path, str]] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+
+def find_run_dirs(roots: Iterable[Path]) -> list[Path]:
+    """Every dir holding ``metrics.json`` under ``roots`` (recursive, deduplicated, sorted)."""
+    found: dict[Path, Path] = {}
+    for root in roots:
+        root = Path(root)
+        if not root.exists():
+            raise ReportError(f"sweep dir not found: expected an existing dir, found no '{root}'")
+        if root.is_file():
+            if root.name != "metrics.json":
+                raise ReportError(f"expected a sweep or run dir, found the file '{root}'")
+            candidates = [root]
+        else:
+            candidates = sorted(root.rglob("metrics.json"))
+        for metrics in candidates:
+            found.setdefault(metrics.parent.resolve(), metrics.parent)
+    return sorted(found.values(), key=lambda p: str(p))
+
+
+def _number(key: str, value: Any) -> int | float | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ReportError(f"expected a number or null for '{key}', found {value!r}")
+    return value
+
+
+def read_run(run_dir: Path) -> dict[str, Any]:
+    """One flat row from ``run_dir/metrics.json``; ``ReportError`` says what is malformed."""
+    path = Path(run_dir) / "metrics.json"
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ReportError(f"cannot read {path}: {exc.strerror or exc}") from exc
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ReportError(f"expected json in {path}, found invalid json ({exc})") from exc
+    if not isinstance(data, dict):
+        raise ReportError(f"expected a json object in {path}, found {type(data).__name__}")
+    status = data.get("status")
+    if status not in STATUSES:
+        raise ReportError(f"expected status one of {'|'.join(STATUSES)} in {path}, found {status!r}")
+    run = data.get("run")
+    if not isinstance(run, dict) or any(run.get(k) in (None, "") for k in REQUIRED_RUN_KEYS):
+        keys = sorted(run) if isinstance(run, dict) else type(run).__name__
+        raise ReportError(f"expected run.strategy, run.dataset, run.seq in {path}, found {keys}")
+    metrics = data.get("metrics")
+    if metrics is None and status == "failed":
+        metrics = {}
+    if not isinstance(metrics, dict):
+        raise ReportError(f"expected a 'metrics' object in {path}, found {type(metrics).__name__}")
+
+    seed = run.get("seed")
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
+        raise ReportError(f"expected an integer run.seed in {path}, found {seed!r}")
+    try:
+        keep_ratio = _number("run.keep_ratio", run.get("keep_ratio"))
+        keep_ratio = None if keep_ratio is None else float(keep_ratio)
+        values = {key: (value if key in TEXT_METRICS else _number(key, value)) for key, value in metrics.items()}
+    except ReportError as exc:
+        raise ReportError(f"{exc} in {path}") from None
+
+    row: dict[str, Any] = {
+        "strategy": str(run["strategy"]),
+        "method": method_name(str(run["strategy"])),
+        "dataset": str(run["dataset"]),
+        "seq": str(run["seq"]),
+        "seed": seed,
+        "keep_ratio": keep_ratio,
+        "config_hash": run.get("config_hash"),
+        "status": status,
+        "error": data.get("error"),
+    }
+    for key in METRIC_KEYS:
+        row[key] = values.pop(key, None)
+    row.update(sorted(values.items()))
+    provenance = data.get("provenance") if isinstance(data.get("provenance"), dict) else {}
+    for key in ("git_commit", "git_dirty", "device"):
+        row[key] = provenance.get(key)
+    versions = provenance.get("versions") if isinstance(provenance.get("versions"), dict) else {}
+    for name, version in sorted(versions.items()):
+        row[f"version_{name}"] = version
+    row["path"] = str(run_dir)
+    return row
+
+
+def collect(roots: Iterable[Path]) -> Collection:
+    """All runs under ``roots`` as a DataFrame; fails only when nothing usable remains."""
+    roots = [Path(r) for r in roots]
+    if not roots:
+        raise ReportError("expected at least one sweep dir, found none")
+    run_dirs = find_run_dirs(roots)
+    shown = ", ".join(str(r) for r in roots)
+    if not run_dirs:
+        raise ReportError(f"no run dirs found: expected metrics.json somewhere under {shown}, found none")
+    rows: list[dict[str, Any]] = []
+    skipped: list[tuple[Path, str]] = []
+    warnings: list[str] = []
+    for run_dir in run_dirs:
+        try:
+            rows.append(read_run(run_dir))
+        except ReportError as exc:
+            skipped.append((run_dir, str(exc)))
+            warnings.append(f"skipped malformed run: {exc}")
+    if not rows:
+        raise ReportError(
+            f"no usable runs under {shown}: found {len(run_dirs)} metrics.json, all malformed (first: {skipped[0][1]})"
+        )
+    runs = pd.DataFrame(rows)
+    runs = runs[[c for c in runs.columns if c != "path"] + ["path"]]
+    for column in runs.columns:  # counts stay integers in runs.csv (20, not 20.0)
+        present = [v for v in (row.get(column) for row in rows) if v is not None]
+        if present and all(isinstance(v, int) and not isinstance(v, bool) for v in present):
+            runs[column] = runs[column].astype("Int64")
+    runs["seed"] = runs["seed"].astype("Int64")
+    keys = ["strategy", "dataset", "seq", "seed", "keep_ratio"]
+    dupes = runs[runs.duplicated(subset=keys, keep=False)]
+    for key, group in dupes.groupby(keys, dropna=False, sort=True):
+        warnings.append(
+            f"duplicate run {dict(zip(keys, key, strict=True))} in {', '.join(group['path'])}: all are counted as seeds"
+        )
+    running = runs[runs["status"] == "running"]
+    if len(running):
+        warnings.append(f"{len(running)} run(s) still running, left out of tables and plots")
+    return Collection(runs=runs, skipped=skipped, warnings=warnings)
+
+
+def is_missing(value: Any) -> bool:
+    """True for None, NaN and pandas' NA, the three shapes a null metric takes in a row."""
+    if value is None or value is pd.NA:
+        return True
+    return isinstance(value, float) and math.isnan(value)

@@ -1,0 +1,61 @@
+"""Display names and orderings, so every table and figure calls a method the same thing."""
+
+from __future__ import annotations
+
+import re
+
+# Built-in strategies in the paper's row order (Tables I-IV); third-party names follow, sorted.
+METHOD_NAMES: dict[str, str] = {
+    "none": "LSG-SLAM baseline",
+    "opacity": "LightGaussian",
+    "gradient": "LP-3DGS",
+    "mask": "MaskGaussian",
+    "area": "Ours (w/o Tile Budget)",
+    "pocket": "Ours (w/ Tile Budget)",
+}
+STRATEGY_ORDER: tuple[str, ...] = tuple(METHOD_NAMES)
+
+DATASET_NAMES: dict[str, str] = {"kitti": "KITTI", "euroc": "EuRoC", "tum": "TUM RGB-D", "synthetic": "Synthetic"}
+
+
+def method_name(strategy: str) -> str:
+    """The paper's name for a built-in strategy; a third-party strategy keeps its own name."""
+    return METHOD_NAMES.get(strategy, strategy)
+
+
+def strategy_rank(strategy: str) -> tuple[int, str]:
+    """Sort key putting built-ins in paper order and unknown strategies after them."""
+    if strategy in STRATEGY_ORDER:
+        return (STRATEGY_ORDER.index(strategy), "")
+    return (len(STRATEGY_ORDER), strategy)
+
+
+def dataset_name(dataset: str) -> str:
+    return DATASET_NAMES.get(dataset, dataset)
+
+
+_EUROC_SEQ = re.compile(r"^([A-Za-z]+\d?)_?(\d{2})(?:_.*)?$")
+
+
+def paper_sequence(dataset: str, seq: str) -> str:
+    """The paper's spelling of a sequence, so measured runs line up with its columns.
+
+    KITTI ``6`` -> ``06``; EuRoC ``MH_01_easy`` -> ``MH01`` (``V1_01_easy`` -> ``V101``).
+    """
+    seq = str(seq).strip()
+    if dataset == "kitti" and seq.isdigit():
+        return seq.zfill(2)
+    if dataset == "euroc":
+        match = _EUROC_SEQ.match(seq)
+        if match:
+            return f"{match.group(1).upper()}{match.group(2)}"
+    return seq
+
+
+def sequence_sort_key(dataset: str, seq: str) -> tuple[str, str]:
+    return (paper_sequence(dataset, seq), seq)
+
+
+def file_token(text: str) -> str:
+    """A string safe in a file name (sequence and dataset names come from user configs)."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", str(text)).strip("_") or "x"

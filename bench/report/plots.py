@@ -1,0 +1,430 @@
+"""Figures in the style of the paper's Figs. 3a, 4 and 5, plus trajectory and Pareto views.
+
+Built on ``matplotlib.figure.Figure`` rather than pyplot: no global backend switch (Agg is
+used for PNG regardless) and no figure left open in a caller's session. Each plot reads only
+the run dir files the harness writes; a missing or malformed file costs that line a warning,
+never the report. Per-sequence figures take the whole dataset's runs plus a sequence, so labels,
+colours and markers match the tables and each other; they show each method's lowest-seed run.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections.abc import Callable
+from pathlib import Path
+
+import matplotlib
+import numpy as np
+import pandas as pd
+from matplotlib.colors import LogNorm
+from matplotlib.figure import Figure
+from matplotlib.ticker import FormatStrFormatter
+
+from bench.report.collect import is_missing
+from bench.report.names import STRATEGY_ORDER, dataset_name, file_token, method_name, sequence_sort_key
+from bench.report.tables import Variant, variant_runs, variants
+
+Warn = Callable[[str], None]
+DPI = 110
+# Which keyframes.csv column holds "the" peak figure, when metrics.json does not tell: the device
+# memory if there was one, else torch's live tensors, else the process RSS.
+PEAK_COLUMNS: tuple[str, ...] = (
+    "cuda_alloc_peak_mib", "torch_live_peak_mib", "cuda_reserved_peak_mib", "cpu_rss_peak_mib",
+)  # fmt: skip
+DENSITY_CELLS = 160  # heatmap cells along the longer image side (Fig. 4 is a coarse heatmap too)
+ASSOCIATE_MAX_DT_S = 0.02  # TUM benchmark default for matching estimate and ground-truth stamps
+
+
+MARKERS: tuple[str, ...] = ("o", "s", "^", "D", "v", "P")
+DASHES: tuple[str, ...] = ("-", "-.", ":", (0, (5, 1)))
+
+
+class Looks:
+    """A fixed colour per strategy (one method looks the same in every figure), and a marker and
+    dash per keep ratio within a strategy."""
+
+    def __init__(self, runs: pd.DataFrame) -> None:
+        self._extra = sorted(s for s in set(runs["strategy"]) if s not in STRATEGY_ORDER)
+        self._nth: dict[Variant, int] = {}
+        for variant in variants(runs):
+            self._nth[variant] = sum(v.strategy == variant.strategy for v in self._nth)
+
+    def colour(self, strategy: str) -> tuple[float, ...]:
+        palette = matplotlib.colormaps["tab10"].colors
+        if strategy in STRATEGY_ORDER:
+            index = STRATEGY_ORDER.index(strategy)
+        else:
+            index = len(STRATEGY_ORDER) + (self._extra.index(strategy) if strategy in self._extra else 0)
+        return palette[index % len(palette)]
+
+    def marker(self, variant: Variant) -> str:
+        return MARKERS[self._nth.get(variant, 0) % len(MARKERS)]
+
+    def dash(self, variant: Variant) -> str | tuple:
+        return DASHES[self._nth.get(variant, 0) % len(DASHES)]
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=DPI)
+    return path
+
+
+def representative(runs: pd.DataFrame) -> pd.Series | None:
+    """The run a per-run figure shows for one variant: the lowest-seed ok run, else a lost one."""
+    for status in ("ok", "lost"):
+        pick = runs[runs["status"] == status]
+        if len(pick):
+            return pick.sort_values("seed", na_position="last").iloc[0]
+    return None
+
+
+def read_keyframes(run_dir: Path, warn: Warn) -> pd.DataFrame | None:
+    path = Path(run_dir) / "keyframes.csv"
+    if not path.is_file():
+        return None
+    try:
+        frame = pd.read_csv(path)
+    except (OSError, ValueError) as exc:
+        warn(f"skipped {path} in plots: expected a csv table, found {exc}")
+        return None
+    if "state_mib" not in frame.columns or not ({"frame", "kf"} & set(frame.columns)):
+        warn(f"skipped {path} in plots: expected columns kf/frame and state_mib, found {list(frame.columns)}")
+        return None
+    return frame
+
+
+def peak_column(run: pd.Series, keyframes: pd.DataFrame) -> str | None:
+    """The keyframes.csv column behind the run's headline ``peak_mem_mib``."""
+    headline = run.get("peak_mem_mib")
+    present = [c for c in PEAK_COLUMNS if c in keyframes.columns and keyframes[c].notna().any()]
+    if not is_missing(headline):
+        for column in present:
+            value = run.get(column)
+            if not is_missing(value) and math.isclose(float(value), float(headline), rel_tol=1e-3):
+                return column
+    return present[0] if present else None
+
+
+def plot_memory_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn) -> Path | None:
+    """Fig. 5: peak memory (solid, left axis) and map state (dashed, right axis) per keyframe.
+
+    The map state is orders of magnitude below the process peak, so it gets its own axis.
+    """
+    fig = Figure(figsize=(7.5, 4.2), layout="constrained")
+    ax = fig.add_subplot()
+    state_ax = ax.twinx()
+    looks = Looks(runs)
+    probes: set[str] = set()
+    drawn = 0
+    one = runs[runs["seq"] == seq]
+    for variant in variants(runs):  # dataset-wide, so labels match the tables
+        run = representative(variant_runs(one, variant))
+        if run is None:
+            continue
+        kf = read_keyframes(Path(run["path"]), warn)
+        if kf is None or kf.empty:
+            continue
+        x = kf["frame"] if "frame" in kf.columns else kf["kf"]
+        colour, marker = looks.colour(variant.strategy), looks.marker(variant)
+        label = variant.label + (" (lost)" if run["status"] == "lost" else "")
+        column = peak_column(run, kf)
+        if column is not None:
+            probes.add(column)
+            ax.plot(x, kf[column], "-", marker=marker, ms=4, color=colour, label=label)
+        state_ax.plot(x, kf["state_mib"], "--", marker=marker, ms=3, mfc="none", color=colour,
+                      label=None if column else label)  # fmt: skip
+        drawn += 1
+    if not drawn:
+        return None
+    ax.set_xlabel("frame")
+    ax.set_ylabel(f"peak memory [MiB] ({', '.join(sorted(probes)) or 'n/a'})", fontsize="small")
+    state_ax.set_ylabel("map state [MiB]", fontsize="small")
+    ax.set_title(f"Memory per keyframe, {dataset_name(dataset)} {seq} (solid: peak, dashed: map state)")
+    ax.grid(alpha=0.3)
+    handles = ax.get_legend_handles_labels()[0] + state_ax.get_legend_handles_labels()[0]
+    ax.legend(handles=handles, fontsize="x-small", loc="best")
+    return _save(fig, out / f"memory_per_keyframe_{file_token(dataset)}_{file_token(seq)}.png")
+
+
+def read_tum(path: Path, warn: Warn) -> np.ndarray | None:
+    """``[N, 8]`` rows ``t tx ty tz qx qy qz qw`` sorted by time, or None (warned) if unusable."""
+    if not path.is_file():
+        return None
+    try:
+        data = np.loadtxt(path, comments="#", ndmin=2, dtype=float)
+    except (OSError, ValueError) as exc:
+        warn(f"skipped {path} in plots: expected TUM rows 't tx ty tz qx qy qz qw', found {exc}")
+        return None
+    if data.shape[0] == 0 or data.shape[1] != 8:
+        warn(f"skipped {path} in plots: expected 8 columns, found shape {data.shape}")
+        return None
+    return data[np.argsort(data[:, 0], kind="stable")]
+
+
+def associate(
+    t_est: np.ndarray, t_gt: np.ndarray, max_dt_s: float = ASSOCIATE_MAX_DT_S
+) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs matching each estimate stamp with the nearest ground-truth stamp."""
+    right = np.clip(np.searchsorted(t_gt, t_est), 0, len(t_gt) - 1)
+    left = np.clip(right - 1, 0, len(t_gt) - 1)
+    nearest = np.where(np.abs(t_gt[left] - t_est) <= np.abs(t_gt[right] - t_est), left, right)
+    ok = np.abs(t_gt[nearest] - t_est) <= max_dt_s
+    return np.flatnonzero(ok), nearest[ok]
+
+
+def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool) -> tuple[float, np.ndarray, np.ndarray]:
+    """``(s, R, t)`` minimising ``|dst - (s R src + t)|`` (Umeyama 1991), as ATE aligns."""
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    xs, xd = src - mu_s, dst - mu_d
+    u, d, vt = np.linalg.svd(xd.T @ xs / len(src))
+    sign = np.eye(3)
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:
+        sign[2, 2] = -1.0
+    rot = u @ sign @ vt
+    var_s = (xs**2).sum() / len(src)
+    scale = float(np.trace(np.diag(d) @ sign) / var_s) if with_scale and var_s > 0 else 1.0
+    return scale, rot, mu_d - scale * rot @ mu_s
+
+
+def aligned_positions(est: np.ndarray, gt: np.ndarray | None, alignment: str) -> np.ndarray:
+    """Estimated positions in the ground-truth frame, aligned the way the ATE was computed."""
+    xyz = est[:, 1:4]
+    if gt is None or alignment not in ("se3", "sim3"):
+        return xyz
+    i_est, i_gt = associate(est[:, 0], gt[:, 0])
+    if len(i_est) < 3:
+        return xyz
+    s, rot, t = umeyama(xyz[i_est], gt[i_gt, 1:4], with_scale=alignment == "sim3")
+    return (s * (rot @ xyz.T)).T + t
+
+
+def plot_trajectory(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn) -> Path | None:
+    """Top view of estimated vs ground-truth paths on the two axes of largest extent."""
+    looks = Looks(runs)
+    gt: np.ndarray | None = None
+    paths: list[tuple[Variant, np.ndarray, bool]] = []
+    one = runs[runs["seq"] == seq]
+    for variant in variants(runs):  # dataset-wide, so labels match the tables
+        run = representative(variant_runs(one, variant))
+        if run is None:
+            continue
+        run_dir = Path(run["path"])
+        est = read_tum(run_dir / "traj_est.txt", warn)
+        if est is None:
+            continue
+        run_gt = read_tum(run_dir / "traj_gt.txt", warn)
+        gt = run_gt if gt is None else gt
+        alignment = run.get("ate_alignment")
+        alignment = "se3" if is_missing(alignment) else str(alignment)
+        paths.append((variant, aligned_positions(est, run_gt, alignment), run["status"] == "lost"))
+    if not paths:
+        return None
+    extent_source = gt[:, 1:4] if gt is not None else np.vstack([p for _, p, _ in paths])
+    axes = sorted(np.argsort(np.ptp(extent_source, axis=0))[-2:])
+    names = "xyz"
+    fig = Figure(figsize=(6.0, 5.5), layout="constrained")
+    ax = fig.add_subplot()
+    if gt is not None:
+        ax.plot(gt[:, 1 + axes[0]], gt[:, 1 + axes[1]], "k-", lw=2.0, alpha=0.6, label="ground truth")
+    for variant, xyz, lost in paths:
+        label = variant.label + (" (lost)" if lost else "")
+        ax.plot(xyz[:, axes[0]], xyz[:, axes[1]], ls=looks.dash(variant), lw=1.2,
+                color=looks.colour(variant.strategy), label=label)  # fmt: skip
+    ax.set_xlabel(f"{names[axes[0]]} [m]")
+    ax.set_ylabel(f"{names[axes[1]]} [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_title(f"Trajectory, {dataset_name(dataset)} {seq} (estimates aligned as for ATE)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="x-small")
+    return _save(fig, out / f"trajectory_{file_token(dataset)}_{file_token(seq)}.png")
+
+
+def read_density(run_dir: Path, warn: Warn) -> tuple[np.ndarray, np.ndarray | None] | None:
+    path = Path(run_dir) / "density.npz"
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path) as data:
+            counts = np.asarray(data["counts"], dtype=float)
+            image = np.asarray(data["image"], dtype=float) if "image" in data.files else None
+    except (OSError, ValueError, KeyError) as exc:
+        warn(f"skipped {path} in plots: expected npz with 'counts' [H, W] and 'image' [H, W, 3], found {exc}")
+        return None
+    if counts.ndim != 2:
+        warn(f"skipped {path} in plots: expected 'counts' of shape [H, W], found {counts.shape}")
+        return None
+    if image is not None and image.shape[:2] != counts.shape:
+        warn(f"ignored the image in {path}: expected shape {counts.shape + (3,)}, found {image.shape}")
+        image = None
+    return counts, image
+
+
+def pool_counts(counts: np.ndarray, block: int) -> np.ndarray:
+    """Sum per-pixel counts over ``block`` x ``block`` cells: a full-resolution histogram shown
+    downscaled would average single-pixel hits away."""
+    if block <= 1:
+        return counts
+    h, w = counts.shape
+    padded = np.zeros((math.ceil(h / block) * block, math.ceil(w / block) * block))
+    padded[:h, :w] = counts
+    return padded.reshape(padded.shape[0] // block, block, padded.shape[1] // block, block).sum(axis=(1, 3))
+
+
+def plot_density(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn) -> Path | None:
+    """Fig. 4: where each strategy's final Gaussians project, on one shared log colour scale."""
+    panels: list[tuple[str, np.ndarray, np.ndarray | None]] = []
+    one = runs[runs["seq"] == seq]
+    for variant in variants(runs):  # dataset-wide, so labels match the tables
+        run = representative(variant_runs(one, variant))
+        if run is None:
+            continue
+        density = read_density(Path(run["path"]), warn)
+        if density is not None:
+            panels.append((variant.label, *density))
+    if not panels:
+        return None
+    ncols = min(3, len(panels))
+    nrows = math.ceil(len(panels) / ncols)
+    h, w = panels[0][1].shape
+    block = max(1, math.ceil(max(h, w) / DENSITY_CELLS))
+    pooled = [pool_counts(counts, block) for _, counts, _ in panels]
+    fig = Figure(figsize=(3.6 * ncols, 3.6 * nrows * h / w + 0.8), layout="constrained")
+    axes = fig.subplots(nrows, ncols, squeeze=False)
+    norm = LogNorm(vmin=1.0, vmax=max(2.0, max(float(p.max()) for p in pooled)))
+    mappable = None
+    for ax, (label, counts, image), cells in zip(axes.ravel(), panels, pooled, strict=False):
+        if image is not None:
+            ax.imshow(np.clip(image, 0.0, 1.0).mean(axis=2), cmap="gray", vmin=0.0, vmax=1.0)
+        ph, pw = cells.shape
+        extent = (-0.5, pw * block - 0.5, ph * block - 0.5, -0.5)
+        mappable = ax.imshow(np.ma.masked_less(cells, 1.0), cmap="inferno", norm=norm, alpha=0.75, extent=extent)
+        ax.set_xlim(-0.5, counts.shape[1] - 0.5)
+        ax.set_ylim(counts.shape[0] - 0.5, -0.5)
+        ax.set_title(f"{label}\n{int(counts.sum())} Gaussians in view", fontsize="small")
+        ax.set_axis_off()
+    for ax in axes.ravel()[len(panels) :]:
+        ax.set_axis_off()
+    if mappable is not None:
+        unit = "pixel" if block == 1 else f"{block}x{block} px cell"
+        bar = fig.colorbar(mappable, ax=axes.ravel().tolist(), label=f"Gaussian centres per {unit}", shrink=0.8)
+        bar.ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+        bar.ax.yaxis.set_minor_formatter(FormatStrFormatter("%g"))
+    fig.suptitle(f"Gaussian density, {dataset_name(dataset)} {seq}")
+    return _save(fig, out / f"density_{file_token(dataset)}_{file_token(seq)}.png")
+
+
+def _dataset_average(runs: pd.DataFrame, metric: str) -> tuple[float | None, int]:
+    """Mean over sequences of the seed means of ok runs (the tables' Avg), and how many
+    sequences it covers."""
+    ok = runs[(runs["status"] == "ok") & runs[metric].notna()] if metric in runs else runs.iloc[0:0]
+    if ok.empty:
+        return None, 0
+    per_seq = ok.groupby("seq")[metric].mean()
+    return float(statistics.fmean(per_seq)), len(per_seq)
+
+
+def plot_ratio(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
+    """Fig. 3a: ATE and PSNR against keep ratio; single-ratio strategies as dashed references."""
+    found = variants(runs)
+    if all(sum(v.strategy == s.strategy for v in found) < 2 for s in found):
+        return None  # no strategy ran at two keep ratios: nothing to plot against
+    looks = Looks(runs)
+    fig = Figure(figsize=(9.0, 3.8), layout="constrained")
+    axes = fig.subplots(1, 2)
+    for ax, (metric, title) in zip(axes, (("ate_rmse_m", "ATE [m]"), ("psnr_db", "PSNR [dB]")), strict=True):
+        by_strategy: dict[str, list[tuple[float | None, float | None, bool]]] = {}
+        for variant in found:
+            vr = variant_runs(runs, variant)
+            all_lost = bool(len(vr)) and not (vr["status"] == "ok").any() and (vr["status"] == "lost").any()
+            by_strategy.setdefault(variant.strategy, []).append(
+                (variant.keep_ratio, _dataset_average(vr, metric)[0], all_lost)
+            )
+        for strategy, points in by_strategy.items():
+            colour = looks.colour(strategy)
+            label = method_name(strategy)
+            numeric = sorted((k, v) for k, v, _ in points if k is not None and v is not None)
+            if len(points) == 1 and points[0][1] is not None:
+                ax.axhline(points[0][1], color=colour, ls="--", lw=1.0, label=f"{label} (one ratio)")
+            elif numeric:
+                ax.plot([k for k, _ in numeric], [v for _, v in numeric], "-o", color=colour, label=label)
+            lost = [k for k, _, is_lost in points if is_lost and k is not None]
+            if lost:
+                ax.plot(lost, [0.02] * len(lost), "x", ms=9, mew=2, color=colour,
+                        transform=ax.get_xaxis_transform(), clip_on=False)  # fmt: skip
+        ax.set_xlabel("keep ratio")
+        ax.set_ylabel(title)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize="x-small")
+    fig.suptitle(f"Accuracy vs keep ratio, {dataset_name(dataset)} (mean over sequences; x: all seeds lost)")
+    return _save(fig, out / f"ratio_{file_token(dataset)}.png")
+
+
+def _front(points: list[tuple[float, float]], lower_is_better: bool) -> list[tuple[float, float]]:
+    """Non-dominated points, sorted by memory: none uses less memory and is more accurate."""
+    front: list[tuple[float, float]] = []
+    for mem, acc in sorted(points):
+        if not front or (acc < front[-1][1] if lower_is_better else acc > front[-1][1]):
+            front.append((mem, acc))
+    return front
+
+
+def plot_pareto(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
+    """Accuracy against peak memory per method (dataset averages), with the Pareto front.
+
+    A method measured on fewer sequences than the others is drawn hollow and kept off the
+    front: its average is over easier or fewer sequences and would not be a fair point.
+    """
+    looks = Looks(runs)
+    n_seqs = runs["seq"].nunique()
+    points: list[tuple[Variant, float, int]] = []
+    for variant in variants(runs):
+        mem, covered = _dataset_average(variant_runs(runs, variant), "peak_mem_mib")
+        if mem is not None:
+            points.append((variant, mem, covered))
+    if not points:
+        return None
+    fig = Figure(figsize=(9.5, 4.2), layout="constrained")
+    axes = fig.subplots(1, 2)
+    panels = (("ate_rmse_m", "ATE [m]", True), ("psnr_db", "PSNR [dB]", False))
+    for ax, (metric, title, lower) in zip(axes, panels, strict=True):
+        full: list[tuple[float, float]] = []
+        for variant, mem, mem_covered in points:
+            value, covered = _dataset_average(variant_runs(runs, variant), metric)
+            if value is None:
+                continue
+            complete = min(covered, mem_covered) == n_seqs
+            colour = looks.colour(variant.strategy)
+            ax.scatter(mem, value, s=45, marker=looks.marker(variant), zorder=3, label=variant.label,
+                       color=colour if complete else "none", edgecolors=colour)  # fmt: skip
+            if complete:
+                full.append((mem, value))
+        front = _front(full, lower)
+        if len(front) > 1:
+            ax.plot(*zip(*front, strict=True), "--", color="grey", lw=1.0, drawstyle="steps-post", zorder=2)
+        ax.set_xlabel("peak memory [MiB]")
+        ax.set_ylabel(title + (" (lower is better)" if lower else " (higher is better)"))
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize="x-small")
+    fig.suptitle(
+        f"Accuracy vs peak memory, {dataset_name(dataset)} (mean over sequences; dashed: Pareto front; "
+        "hollow: not every sequence)",
+        fontsize="medium",
+    )
+    return _save(fig, out / f"pareto_{file_token(dataset)}.png")
+
+
+def make_plots(runs: pd.DataFrame, out: Path, warn: Warn) -> list[Path]:
+    """Every figure the runs support; finished runs only (``running`` ones left out)."""
+    done = runs[runs["status"].isin(["ok", "lost"])]
+    written: list[Path | None] = []
+    for dataset in sorted(set(done["dataset"])):
+        ds = done[done["dataset"] == dataset]
+        for seq in sorted(set(ds["seq"]), key=lambda s: sequence_sort_key(dataset, s)):
+            written.append(plot_memory_per_keyframe(ds, dataset, seq, out, warn))
+            written.append(plot_density(ds, dataset, seq, out, warn))
+            written.append(plot_trajectory(ds, dataset, seq, out, warn))
+        written.append(plot_ratio(ds, dataset, out))
+        written.append(plot_pareto(ds, dataset, out))
+    return [p for p in written if p is not None]

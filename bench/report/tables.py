@@ -1,0 +1,421 @@
+"""The paper's table layouts (Tables I-IV) built from measured runs, independent of output format.
+
+A table is method rows grouped in metric blocks, sequences as columns plus ``Avg``; the
+renderers in ``render.py`` only format these cells. Keeping the numbers here lets tests check
+values (best, relative figures) without parsing LaTeX.
+"""
+
+from __future__ import annotations
+
+import statistics
+from dataclasses import dataclass, field, replace
+from typing import Literal
+
+import pandas as pd
+
+from bench.report.collect import is_missing
+from bench.report.names import dataset_name, method_name, paper_sequence, sequence_sort_key, strategy_rank
+from bench.report.paper import LOST, PAPER_METRIC, PAPER_STRATEGY, PAPER_UNIT, paper_values
+
+CellKind = Literal["num", "lost", "na", "failed", "empty", "ref"]
+Better = Literal["lower", "higher"]
+Style = Literal["value", "percent", "times"]
+AVG = "Avg"
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One table entry: a mean (± std over seeds) or a mark saying why there is no number."""
+
+    kind: CellKind
+    mean: float | None = None
+    std: float | None = None
+    decimals: int | None = None  # overrides the block's; paper figures keep their printed precision
+    unit: str = ""
+    note: str = ""  # e.g. "1/3 lost": seeds left out of the mean
+    bold: bool = False
+    partial: bool = False  # an Avg over fewer sequences than shown: not ranked against full ones
+
+
+EMPTY = Cell("empty")
+
+
+@dataclass
+class Row:
+    label: str
+    cells: list[Cell]
+    paper: bool = False
+
+
+@dataclass
+class Block:
+    """Rows for one metric; ``better`` decides the bold cell, ``style`` how numbers print."""
+
+    title: str
+    better: Better | None
+    style: Style
+    decimals: int
+    rows: list[Row] = field(default_factory=list)
+
+
+@dataclass
+class Table:
+    kind: Literal["accuracy", "performance"]
+    dataset: str
+    columns: list[str]  # sequence names, then "Avg"
+    blocks: list[Block]
+    caption: str
+    notes: list[str]
+
+    @property
+    def name(self) -> str:
+        return f"{self.kind}_{self.dataset}"
+
+
+@dataclass(frozen=True)
+class Variant:
+    """A measured table row: one strategy at one keep ratio, seeds pooled."""
+
+    strategy: str
+    keep_ratio: float | None
+    label: str
+
+
+@dataclass(frozen=True)
+class MetricSpec:
+    key: str  # column of runs.csv
+    title: str
+    better: Better
+    decimals: int
+
+
+ACCURACY_METRICS: tuple[MetricSpec, ...] = (
+    MetricSpec("ate_rmse_m", "ATE [m]", "lower", 3),
+    MetricSpec("psnr_db", "PSNR [dB]", "higher", 2),
+    MetricSpec("ssim", "SSIM", "higher", 3),
+    MetricSpec("lpips", "LPIPS", "lower", 3),
+)
+MEMORY = MetricSpec("peak_mem_mib", "Peak memory [MiB]", "lower", 1)
+FPS = MetricSpec("fps", "FPS", "higher", 2)
+
+MARKS_NOTE = (
+    "'-': tracking lost; 'n/a': metric unavailable; 'failed': run crashed; empty: not run. "
+    "Several seeds: mean ± sample std (n-1); 'k/n lost' counts seeds left out of the mean. "
+    "Avg: over the sequences with a value (the paper's convention), 'k/n seqs' where not all have one. "
+    "Bold: best measured value (full averages only)."
+)
+
+
+def _keep(value: object) -> float | None:
+    return None if is_missing(value) else float(value)  # type: ignore[arg-type]
+
+
+def variants(runs: pd.DataFrame) -> list[Variant]:
+    """Measured rows in paper order; the keep ratio is named only where a strategy ran several."""
+    pairs = {(s, _keep(k)) for s, k in zip(runs["strategy"], runs["keep_ratio"], strict=True)}
+    ratios: dict[str, int] = {}
+    for strategy, _ in pairs:
+        ratios[strategy] = ratios.get(strategy, 0) + 1
+    out = []
+    for strategy, keep in sorted(pairs, key=lambda p: (strategy_rank(p[0]), -1.0 if p[1] is None else p[1])):
+        label = method_name(strategy)
+        if ratios[strategy] > 1:
+            label += f" (keep {keep:g})" if keep is not None else " (keep n/a)"
+        out.append(Variant(strategy, keep, label))
+    return out
+
+
+def variant_runs(runs: pd.DataFrame, variant: Variant) -> pd.DataFrame:
+    keep = runs["keep_ratio"]
+    same_keep = keep.isna() if variant.keep_ratio is None else keep == variant.keep_ratio
+    return runs[(runs["strategy"] == variant.strategy) & same_keep]
+
+
+def sequences(runs: pd.DataFrame, dataset: str) -> list[str]:
+    return sorted(set(runs["seq"]), key=lambda s: sequence_sort_key(dataset, s))
+
+
+def seed_cell(runs: pd.DataFrame, metric: str) -> Cell:
+    """Pool the seeds of one (variant, sequence): lost seeds are counted, not averaged."""
+    if runs.empty:
+        return EMPTY
+    status = runs["status"]
+    n_lost, n_failed = int((status == "lost").sum()), int((status == "failed").sum())
+    ok = runs[status == "ok"]
+    if ok.empty:
+        return Cell("lost") if n_lost else Cell("failed") if n_failed else EMPTY
+    values = [float(v) for v in ok[metric] if not is_missing(v)] if metric in ok else []
+    if not values:
+        return Cell("na")
+    total = len(runs)
+    notes = [f"{n}/{total} {what}" for n, what in ((n_lost, "lost"), (n_failed, "failed")) if n]
+    std = statistics.stdev(values) if len(values) > 1 else None
+    return Cell("num", mean=statistics.fmean(values), std=std, note=", ".join(notes))
+
+
+def average_cell(cells: list[Cell]) -> Cell:
+    """Mean over sequences with a number; with none, the most telling mark among them."""
+    numbers = [c for c in cells if c.kind == "num" and c.mean is not None]
+    if numbers:
+        decimals = max((c.decimals for c in numbers if c.decimals is not None), default=None)
+        partial = len(numbers) < len(cells)
+        note = f"{len(numbers)}/{len(cells)} seqs" if partial else ""
+        return Cell("num", mean=statistics.fmean(c.mean for c in numbers), decimals=decimals,
+                    unit=numbers[0].unit, note=note, partial=partial)  # fmt: skip
+    for kind in ("lost", "failed", "na"):
+        if any(c.kind == kind for c in cells):
+            return Cell(kind)
+    return EMPTY
+
+
+def _decimals(text: str) -> int:
+    return len(text.split(".", 1)[1]) if "." in text else 0
+
+
+def paper_cell(text: str | None, unit: str = "") -> Cell:
+    if text is None or text == "":
+        return EMPTY
+    if text == LOST:
+        return Cell("lost")
+    try:
+        return Cell("num", mean=float(text), decimals=_decimals(text), unit=unit)
+    except ValueError:
+        return Cell("na")
+
+
+@dataclass
+class _PaperRows:
+    """Paper rows of one table, keyed by paper method, with per-sequence cells."""
+
+    by_method: dict[str, dict[str, list[Cell]]]  # method -> metric key -> cells (columns order)
+    recomputed_avg: bool
+
+
+def _paper_rows(paper: pd.DataFrame, table: str, dataset: str, seqs: list[str], metrics: list[str]) -> _PaperRows:
+    values = paper_values(paper, table, dataset)
+    by_method: dict[str, dict[str, list[Cell]]] = {}
+    recomputed = False
+    for method, per_metric in values.items():
+        by_method[method] = {}
+        for key in metrics:
+            printed = per_metric.get(PAPER_METRIC[key], {})
+            unit = PAPER_UNIT.get(PAPER_METRIC[key], "")
+            cells = [paper_cell(printed.get(paper_sequence(dataset, s)), unit) for s in seqs]
+            paper_seqs = {s for s in printed if s != AVG}
+            shown = {paper_sequence(dataset, s) for s in seqs}
+            if paper_seqs <= shown and AVG in printed:
+                avg = paper_cell(printed[AVG], unit)
+            else:
+                avg = average_cell(cells)
+                recomputed = recomputed or avg.kind == "num"
+            by_method[method][key] = cells + [avg]
+    return _PaperRows(by_method, recomputed)
+
+
+def _has_overlap(paper: pd.DataFrame, table: str, dataset: str, seqs: list[str]) -> bool:
+    rows = paper[(paper["table"] == table) & (paper["dataset"] == dataset)]
+    shown = {paper_sequence(dataset, s) for s in seqs}
+    return bool(shown & set(rows["sequence"]))
+
+
+def _ordered_rows(measured: list[tuple[Variant, Row]], paper_rows: list[tuple[str, Row]]) -> list[Row]:
+    """Measured rows in paper order, each paper row right after the measured row of its method."""
+    keyed: list[tuple[tuple[int, str], int, int, Row]] = []
+    for i, (variant, row) in enumerate(measured):
+        keyed.append((strategy_rank(variant.strategy), 0, i, row))
+    for i, (method, row) in enumerate(paper_rows):
+        strategy = PAPER_STRATEGY.get(method, method)
+        keyed.append((strategy_rank(strategy), 1, i, row))
+    return [row for *_, row in sorted(keyed, key=lambda k: k[:3])]
+
+
+def mark_best(block: Block) -> None:
+    """Bold the best measured value per column; ties at printed precision all win, but a column
+    where every entry ties has no best. Paper rows and partial averages are not ranked."""
+    if block.better is None or not block.rows:
+        return
+    for col in range(len(block.rows[0].cells)):
+        candidates = [
+            (row, row.cells[col])
+            for row in block.rows
+            if not row.paper and row.cells[col].kind == "num" and not row.cells[col].partial
+        ]
+        shown = [round(c.mean, c.decimals if c.decimals is not None else block.decimals) for _, c in candidates]
+        if len(set(shown)) < 2:
+            continue
+        best = min(shown) if block.better == "lower" else max(shown)
+        for (row, cell), value in zip(candidates, shown, strict=True):
+            if value == best:
+                row.cells[col] = replace(cell, bold=True)
+
+
+def _metric_block(
+    spec: MetricSpec,
+    runs: pd.DataFrame,
+    seqs: list[str],
+    rows_for: list[Variant],
+    paper_rows: _PaperRows | None,
+) -> tuple[Block, dict[Variant, list[Cell]], dict[str, list[Cell]]]:
+    measured: list[tuple[Variant, Row]] = []
+    measured_cells: dict[Variant, list[Cell]] = {}
+    for variant in rows_for:
+        vr = variant_runs(runs, variant)
+        cells = [seed_cell(vr[vr["seq"] == s], spec.key) for s in seqs]
+        cells.append(average_cell(cells))
+        measured_cells[variant] = cells
+        measured.append((variant, Row(variant.label, cells)))
+    paper_cells: dict[str, list[Cell]] = {}
+    prow: list[tuple[str, Row]] = []
+    if paper_rows is not None:
+        for method, per_metric in paper_rows.by_method.items():
+            paper_cells[method] = per_metric[spec.key]
+            prow.append((method, Row(f"(paper) {method}", list(per_metric[spec.key]), paper=True)))
+    block = Block(spec.title, spec.better, "value", spec.decimals, _ordered_rows(measured, prow))
+    mark_best(block)
+    return block, measured_cells, paper_cells
+
+
+def relative_cells(cells: list[Cell], base: list[Cell], style: Style) -> list[Cell]:
+    """Per sequence ``x / base`` (times) or ``x / base - 1`` (percent); Avg is the ratio of the
+    means over the sequences both have, so a sequence one of them lost cannot skew it."""
+    out = []
+    pairs = []
+    for cell, ref in zip(cells[:-1], base[:-1], strict=True):
+        if cell.kind == "num" and ref.kind == "num" and ref.mean:
+            pairs.append((cell.mean, ref.mean))
+            out.append(_ratio_cell(cell.mean / ref.mean, style))
+        elif "lost" in (cell.kind, ref.kind):
+            out.append(Cell("lost"))
+        elif "failed" in (cell.kind, ref.kind):
+            out.append(Cell("failed"))
+        elif cell.kind == "empty" or ref.kind == "empty":
+            out.append(EMPTY)
+        else:
+            out.append(Cell("na"))
+    if pairs:
+        ratio = statistics.fmean(p[0] for p in pairs) / statistics.fmean(p[1] for p in pairs)
+        cell = _ratio_cell(ratio, style)
+        if len(pairs) < len(out):
+            cell = replace(cell, note=f"{len(pairs)}/{len(out)} seqs", partial=True)
+        out.append(cell)
+    else:
+        out.append(average_cell(out))
+    return out
+
+
+def _ratio_cell(ratio: float, style: Style) -> Cell:
+    return Cell("num", mean=(ratio - 1.0) * 100.0 if style == "percent" else ratio)
+
+
+def _relative_block(
+    title: str,
+    style: Style,
+    source: Block,
+    measured: dict[Variant, list[Cell]],
+    baseline: Variant,
+    paper: dict[str, list[Cell]],
+) -> Block:
+    by_label = {v.label: (v, cells) for v, cells in measured.items()}
+    paper_base = paper.get("LSG-SLAM")
+    rows = []
+    for row in source.rows:
+        if row.paper:
+            method = row.label.removeprefix("(paper) ")
+            if paper_base is None:
+                continue
+            cells = paper[method]
+            is_base = method == "LSG-SLAM"
+            rel = [Cell("ref")] * len(cells) if is_base else relative_cells(cells, paper_base, style)
+        else:
+            variant, cells = by_label[row.label]
+            is_base = variant == baseline
+            rel = [Cell("ref")] * len(cells) if is_base else relative_cells(cells, measured[baseline], style)
+        rows.append(Row(row.label, rel, paper=row.paper))
+    decimals = 1 if style == "percent" else 2
+    return Block(title, None, style, decimals, rows)
+
+
+def pick_baseline(found: list[Variant], baseline: str) -> tuple[Variant | None, str | None]:
+    """The measured row every other row is compared with; a warning when it is ambiguous."""
+    candidates = [v for v in found if v.strategy == baseline]
+    if not candidates:
+        return None, None
+    if len(candidates) == 1:
+        return candidates[0], None
+    preferred = [v for v in candidates if v.keep_ratio in (None, 1.0)] or candidates
+    chosen = preferred[0]
+    return chosen, f"baseline '{baseline}' ran at several keep ratios; relative rows use '{chosen.label}'"
+
+
+def accuracy_table(runs: pd.DataFrame, dataset: str, paper: pd.DataFrame | None = None) -> Table:
+    """Table I/II layout: ATE, PSNR, SSIM, LPIPS blocks of method rows; sequences plus Avg."""
+    seqs = sequences(runs, dataset)
+    found = variants(runs)
+    notes = [MARKS_NOTE]
+    prows = None
+    if paper is not None and _has_overlap(paper, "accuracy", dataset, seqs):
+        prows = _paper_rows(paper, "accuracy", dataset, seqs, [m.key for m in ACCURACY_METRICS])
+        notes.append("(paper) rows: the figures printed in the Pocket-SLAM paper, not bold-ranked.")
+        if prows.recomputed_avg:
+            notes.append("Paper Avg recomputed over the sequences shown.")
+    blocks = [_metric_block(spec, runs, seqs, found, prows)[0] for spec in ACCURACY_METRICS]
+    caption = f"Tracking and rendering accuracy on {dataset_name(dataset)}."
+    return Table("accuracy", dataset, [*seqs, AVG], blocks, caption, notes)
+
+
+def performance_table(
+    runs: pd.DataFrame, dataset: str, paper: pd.DataFrame | None = None, baseline: str = "none"
+) -> tuple[Table, list[str]]:
+    """Table III/IV layout: peak memory and FPS blocks, each followed by its change vs the baseline."""
+    seqs = sequences(runs, dataset)
+    found = variants(runs)
+    warnings: list[str] = []
+    notes = [
+        MARKS_NOTE,
+        "Peak memory: the run's headline peak_mem_mib (MiB). Memory vs baseline: peak / baseline peak - 1; "
+        "FPS vs baseline: FPS / baseline FPS; their Avg is the ratio of means over the sequences both have.",
+    ]
+    prows = None
+    if paper is not None and _has_overlap(paper, "performance", dataset, seqs):
+        prows = _paper_rows(paper, "performance", dataset, seqs, [MEMORY.key, FPS.key])
+        notes.append(
+            "(paper) rows: the figures printed in the Pocket-SLAM paper (memory in GB as printed), "
+            "compared with the paper's own LSG-SLAM; not bold-ranked."
+        )
+        if prows.recomputed_avg:
+            notes.append("Paper Avg recomputed over the sequences shown.")
+    base, warning = pick_baseline(found, baseline)
+    if warning:
+        warnings.append(f"{dataset}: {warning}")
+    mem, mem_cells, mem_paper = _metric_block(MEMORY, runs, seqs, found, prows)
+    fps, fps_cells, fps_paper = _metric_block(FPS, runs, seqs, found, prows)
+    blocks = [mem]
+    if base is not None:
+        blocks.append(_relative_block("Memory vs baseline", "percent", mem, mem_cells, base, mem_paper))
+    blocks.append(fps)
+    if base is not None:
+        blocks.append(_relative_block("FPS vs baseline", "times", fps, fps_cells, base, fps_paper))
+        notes.append(f"Baseline: {base.label}.")
+    else:
+        warnings.append(f"{dataset}: no runs of baseline strategy '{baseline}', relative rows left out")
+        notes.append(f"No runs of baseline strategy '{baseline}': relative rows left out.")
+    caption = f"Peak memory and speed on {dataset_name(dataset)}."
+    return Table("performance", dataset, [*seqs, AVG], blocks, caption, notes), warnings
+
+
+def build_tables(
+    runs: pd.DataFrame, paper: pd.DataFrame | None = None, baseline: str = "none"
+) -> tuple[list[Table], list[str]]:
+    """Accuracy and performance tables per dataset from finished runs (``running`` ones left out)."""
+    done = runs[runs["status"] != "running"]
+    tables: list[Table] = []
+    warnings: list[str] = []
+    for dataset in sorted(set(done["dataset"])):
+        ds = done[done["dataset"] == dataset]
+        tables.append(accuracy_table(ds, dataset, paper))
+        perf, warns = performance_table(ds, dataset, paper, baseline)
+        tables.append(perf)
+        warnings.extend(warns)
+        if paper is not None and not _has_overlap(paper, "accuracy", dataset, sequences(ds, dataset)):
+            warnings.append(f"{dataset}: the paper has no figures for the sequences measured, no paper rows")
+    return tables, warnings

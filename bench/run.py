@@ -1,0 +1,352 @@
+"""``run(cfg) -> RunResult``: one SLAM run wired end to end, writing its run directory.
+
+Everything a run learns is written as it goes: ``keyframes.csv`` rows are flushed per keyframe
+window and ``metrics.json`` is replaced atomically, so an interrupted or lost run keeps what
+it computed. A known failure (``BenchError``) becomes status ``failed`` with its one-line
+message; ``TrackingLost`` becomes status ``lost`` and is still evaluated on the frames tracked.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import logging
+import math
+import os
+import random
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from bench import provenance
+from bench.datasets import open_sequence
+from bench.errors import BenchError, ConfigError, TrackingLost
+from bench.measure import MemoryProbe, PhaseTimer
+from bench.slam.se3 import inverse
+from bench.slam.system import SlamConfig, System
+from bench.strategy import load_strategy
+
+log = logging.getLogger(__name__)
+
+KEYFRAME_COLUMNS = [
+    "kf",
+    "frame",
+    "n_gaussians",
+    "n_masked",
+    "n_added",
+    "n_pruned",
+    "state_bytes",
+    "state_mib",
+    "cpu_rss_peak_mib",
+    "torch_live_peak_mib",
+    "cuda_alloc_peak_mib",
+    "cuda_reserved_peak_mib",
+    "track_s",
+    "map_s",
+    "prune_s",
+]
+MIB = 1024.0 * 1024.0
+# keys that change how a run is shown or stored, not what it computes
+_NOT_HASHED = ("progress", "out_dir", "resume")
+
+
+@dataclass
+class RunResult:
+    status: str  # ok | lost | failed
+    out_dir: Path
+    metrics: dict[str, Any] = field(default_factory=dict)
+    error: str | None = None
+    skipped: bool = False  # resume found completed results for the same config hash
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        raise ConfigError(f"device '{name}' requested but cuda is not available; use device=cpu or device=auto")
+    if name != "cpu" and not name.startswith("cuda"):
+        raise ConfigError(f"device must be auto, cpu or cuda[:N], got '{name}'")
+    return torch.device(name)
+
+
+def run_keys(cfg: DictConfig) -> dict[str, Any]:
+    strategy = cfg.get("strategy")
+    return {
+        "strategy": strategy.name if strategy else "none",
+        "dataset": cfg.dataset.name,
+        "seq": _seq_name(cfg),
+        "seed": int(cfg.seed),
+        "keep_ratio": float(cfg.prune.keep_ratio),
+    }
+
+
+def _seq_name(cfg: DictConfig) -> str | None:
+    seq = cfg.get("seq")
+    if seq is None:
+        seq = cfg.dataset.get("seq")
+    if seq is None:
+        seq = cfg.dataset.get("default_seq", cfg.dataset.get("seed"))
+    return None if seq is None else str(seq)
+
+
+def _hashable(cfg: DictConfig) -> dict[str, Any]:
+    plain = OmegaConf.to_container(cfg, resolve=True)
+    return {k: v for k, v in plain.items() if k not in _NOT_HASHED}
+
+
+def _write_json(path: Path, obj: dict[str, Any]) -> None:
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(obj, indent=2, default=_json_default))
+    os.replace(tmp, path)
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(type(o))
+
+
+def _finite_or_none(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def completed(out_dir: Path, cfg_hash: str) -> dict[str, Any] | None:
+    """The stored metrics if ``out_dir`` holds a finished run (ok or lost) of the same config."""
+    path = out_dir / "metrics.json"
+    try:
+        stored = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    if stored.get("status") in ("ok", "lost") and stored.get("run", {}).get("config_hash") == cfg_hash:
+        return stored
+    return None
+
+
+def slam_config(cfg: DictConfig) -> SlamConfig:
+    raw = OmegaConf.to_container(cfg.slam, resolve=True)
+    names = {f.name for f in dataclasses.fields(SlamConfig)}
+    unknown = sorted(set(raw) - names)
+    if unknown:
+        raise ConfigError(f"slam has no setting {', '.join(unknown)}; expected one of: {', '.join(sorted(names))}")
+    raw["seed"] = int(cfg.seed)
+    return SlamConfig(**raw)
+
+
+def run(cfg: DictConfig, out_dir: str | Path | None = None) -> RunResult:
+    """Run one (strategy, dataset, seq, seed) combination and write its run directory."""
+    out = Path(out_dir or cfg.get("out_dir") or ".").resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    cfg_hash = provenance.config_hash(_hashable(cfg))
+    keys = {**run_keys(cfg), "config_hash": cfg_hash}
+    if cfg.get("resume", True):
+        stored = completed(out, cfg_hash)
+        if stored is not None:
+            log.info("skipping %s: completed results with config hash %s exist", out, cfg_hash)
+            return RunResult(stored["status"], out, stored.get("metrics", {}), stored.get("error"), skipped=True)
+    (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    record: dict[str, Any] = {"status": "running", "error": None, "run": keys, "metrics": {}, "provenance": {}}
+    _write_json(out / "metrics.json", record)
+    try:
+        device = resolve_device(str(cfg.device))
+        record["provenance"] = provenance.collect(device)
+        status, error, metrics = _execute(cfg, out, device, record)
+    except BenchError as exc:
+        status, error, metrics = "failed", str(exc), record["metrics"]
+    except Exception as exc:  # unexpected: record it so the sweep goes on, then re-raise for the traceback
+        record.update(status="failed", error=f"{type(exc).__name__}: {exc}".splitlines()[0])
+        _write_json(out / "metrics.json", record)
+        raise
+    record.update(status=status, error=error, metrics=metrics)
+    _write_json(out / "metrics.json", record)
+    return RunResult(status, out, metrics, error)
+
+
+def _execute(cfg: DictConfig, out: Path, device: torch.device, record: dict[str, Any]):
+    seed = int(cfg.seed)
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+    if cfg.get("threads"):
+        torch.set_num_threads(int(cfg.threads))
+    strategy_cfg = cfg.get("strategy")
+    name = strategy_cfg.name if strategy_cfg else "none"
+    params = (
+        OmegaConf.to_container(strategy_cfg.params, resolve=True) if strategy_cfg and "params" in strategy_cfg else {}
+    )
+    strategy = load_strategy(name, params or {})
+    ds_cfg = OmegaConf.to_container(cfg.dataset, resolve=True)
+    if cfg.get("seq") is not None:
+        ds_cfg["seq"] = str(cfg.seq)
+    seq = open_sequence(cfg.dataset.name, ds_cfg)
+    n_frames = len(seq)
+    if cfg.get("max_frames"):
+        n_frames = min(n_frames, int(cfg.max_frames))
+    if n_frames < 2:
+        raise ConfigError(f"a run needs at least 2 frames, the sequence has {n_frames}")
+
+    timer = PhaseTimer(device)
+    probe = MemoryProbe(device, torch_live=bool(cfg.memory.torch_live))
+    system = System(
+        slam_config(cfg), seq.K, seq.height, seq.width, strategy, float(cfg.prune.keep_ratio), device, timer=timer
+    )
+    metrics: dict[str, Any] = {"num_frames": 0, "num_keyframes": 0}
+    record["metrics"] = metrics
+    timestamps, gt_c2w = [], []
+    windows: list[dict[str, Any]] = []
+    status, error = "ok", None
+    show = bool(cfg.get("progress", True))
+    bar = _progress(n_frames, show)
+    warmup = int(cfg.get("warmup_frames", 1))
+    t_loop = 0.0
+    probe.start_window()
+    with open(out / "keyframes.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=KEYFRAME_COLUMNS)
+        writer.writeheader()
+        fh.flush()
+        try:
+            for i in range(n_frames):
+                frame = seq[i]  # loading is not SLAM time
+                if device.type == "cuda":
+                    torch.cuda.synchronize(device)
+                t0 = time.perf_counter()
+                res = system.process(frame)
+                if device.type == "cuda":
+                    torch.cuda.synchronize(device)
+                if i >= warmup:
+                    t_loop += time.perf_counter() - t0
+                timestamps.append(frame.timestamp_s)
+                gt_c2w.append(frame.gt_c2w)
+                metrics["num_frames"] = i + 1
+                if res.is_keyframe:
+                    mem = probe.end_window()
+                    state_bytes = system.map.state_bytes()
+                    row = {
+                        "kf": res.keyframe_index,
+                        "frame": frame.index,
+                        "n_gaussians": len(system.map),
+                        "n_masked": strategy.masked_count(system.map, system.map.state),
+                        "n_added": res.n_added,
+                        "n_pruned": res.n_pruned,
+                        "state_bytes": state_bytes,
+                        "state_mib": round(state_bytes / MIB, 4),
+                        **{k: _round(v) for k, v in mem.items()},
+                        "track_s": round(res.track_s, 4),
+                        "map_s": round(res.map_s, 4),
+                        "prune_s": round(res.prune_s, 4),
+                    }
+                    writer.writerow(row)
+                    fh.flush()
+                    windows.append(row)
+                    metrics["num_keyframes"] = len(windows)
+                    probe.start_window()
+                bar.update(1)
+                bar.set_postfix(gaussians=len(system.map), fps=f"{(i + 1 - warmup) / max(t_loop, 1e-9):.2f}")
+        except TrackingLost as exc:
+            status, error = "lost", str(exc)
+            log.warning("%s", exc)
+        finally:
+            bar.close()
+            probe.close()
+    n_done = metrics["num_frames"]
+    metrics["slam_wall_s"] = round(t_loop, 3)
+    metrics["fps"] = round((n_done - warmup) / t_loop, 4) if t_loop > 0 and n_done > warmup else None
+    metrics["phase_s"] = {k: round(v, 3) for k, v in timer.totals().items()}
+    metrics["memory_method"] = {"cpu_rss": probe.rss_method, "torch_live": bool(cfg.memory.torch_live)}
+    metrics.update(_memory_summary(windows, device))
+    metrics["gaussians_final"] = len(system.map)
+    metrics["keep_ratio"] = float(cfg.prune.keep_ratio)
+    est_c2w = [inverse(p.detach().double().cpu()) for p in system.poses[:n_done]]
+    metrics.update(_evaluate(cfg, out, seq, system, est_c2w, timestamps, gt_c2w, device))
+    from bench.plots import memory_timeline, write_density
+
+    memory_timeline(out / "memory.png", windows, title=f"{run_keys(cfg)['strategy']} on {seq.name}")
+    write_density(out / "density.npz", system, est_c2w, seq)
+    return status, error, metrics
+
+
+def _round(v: float | None) -> float | None:
+    return None if v is None else round(float(v), 3)
+
+
+def _memory_summary(windows: list[dict[str, Any]], device: torch.device) -> dict[str, Any]:
+    def peak(key: str) -> float | None:
+        vals = [w[key] for w in windows if w.get(key) is not None]
+        return max(vals) if vals else None
+
+    summary = {
+        "gaussians_peak": peak("n_gaussians") or 0,
+        "state_peak_mib": peak("state_mib"),
+        "cpu_rss_peak_mib": peak("cpu_rss_peak_mib"),
+        "torch_live_peak_mib": peak("torch_live_peak_mib"),
+        "cuda_alloc_peak_mib": peak("cuda_alloc_peak_mib"),
+        "cuda_reserved_peak_mib": peak("cuda_reserved_peak_mib"),
+    }
+    # The headline figure: what the device must hold at once (the paper reads the CUDA allocator peak).
+    if device.type == "cuda":
+        summary["peak_mem_mib"], summary["peak_mem_source"] = summary["cuda_alloc_peak_mib"], "cuda_alloc"
+    elif summary["torch_live_peak_mib"] is not None:
+        summary["peak_mem_mib"], summary["peak_mem_source"] = summary["torch_live_peak_mib"], "torch_live"
+    else:
+        summary["peak_mem_mib"], summary["peak_mem_source"] = summary["cpu_rss_peak_mib"], "cpu_rss"
+    return summary
+
+
+def _evaluate(
+    cfg: DictConfig,
+    out: Path,
+    seq,
+    system: System,
+    est_c2w: list[torch.Tensor],
+    timestamps: list[float],
+    gt_c2w: list[torch.Tensor | None],
+    device: torch.device,
+) -> dict[str, Any]:
+    """ATE (evo), PSNR/SSIM (torchmetrics), LPIPS when weights exist; none of it is SLAM time."""
+    from bench.metrics.image import image_metrics
+    from bench.metrics.lpips import LPIPS
+    from bench.metrics.trajectory import Trajectory, ate, rpe, write_tum
+
+    ev = cfg.eval
+    res: dict[str, Any] = {"ate_rmse_m": None, "psnr_db": None, "ssim": None, "lpips": None}
+    if not est_c2w:
+        return res
+    ts = np.asarray(timestamps)
+    est = Trajectory.from_c2w(ts, torch.stack(est_c2w).numpy())
+    write_tum(out / "traj_est.txt", est)
+    if all(g is not None for g in gt_c2w) and len(est_c2w) >= 3:
+        gt_world = torch.stack([g.double() for g in gt_c2w])
+        gt_world = inverse(gt_world[0]).expand_as(gt_world) @ gt_world  # first camera = origin, like the estimate
+        gt = Trajectory.from_c2w(ts, gt_world.numpy())
+        write_tum(out / "traj_gt.txt", gt)
+        res.update(ate(est, gt, align=str(ev.ate_align), max_diff_s=float(ev.max_diff_s)))
+        res["ate_frames"] = [0, len(est_c2w) - 1]
+        res["path_length_m"] = round(float(np.linalg.norm(np.diff(gt.positions_m, axis=0), axis=1).sum()), 4)
+        if ev.get("rpe"):
+            res.update(rpe(est, gt, align=str(ev.ate_align), max_diff_s=float(ev.max_diff_s)))
+    every = max(1, int(ev.every))
+    idx = list(range(0, len(est_c2w), every))
+    preds, targets = [], []
+    with torch.no_grad():
+        for i in idx:
+            w2c = inverse(est_c2w[i]).float().to(device)
+            preds.append(system.render(w2c).color.clamp(0, 1).cpu())
+            targets.append(seq[i].rgb)
+    lp = LPIPS.from_weights(ev.get("lpips_weights"), device=device) if ev.get("lpips", True) else None
+    img = image_metrics(preds, targets, lpips=lp)
+    res.update({k: _finite_or_none(v) if isinstance(v, float) else v for k, v in img.items()})
+    res["eval_frames"] = len(idx)
+    return res
+
+
+def _progress(total: int, show: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc="frames", unit="frame", disable=not show, dynamic_ncols=True, leave=False)

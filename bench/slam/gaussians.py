@@ -1,0 +1,148 @@
+"""The Gaussian map: parameters, their optimizer, and per-Gaussian state, kept aligned.
+
+Every per-Gaussian tensor lives here and changes length only through ``add`` and
+``remove`` (gsplat's ``strategy/ops.py`` pattern), so the Adam moments, the strategy's
+state and the birth keyframe can never drift out of step with the parameters.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+# Learning rates per parameter (Adam). Means are scaled by the scene's depth at init.
+DEFAULT_LRS = {
+    "means": 1e-3,
+    "log_scales": 5e-3,
+    "quats": 1e-3,
+    "opacity_logits": 5e-2,
+    "colors": 5e-3,
+}
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """An extra per-Gaussian parameter a strategy asks the core to own (e.g. mask logits)."""
+
+    init: float  # value for every new Gaussian
+    lr: float
+    dim: int = 0  # 0 -> shape [N]; k -> [N, k]
+
+
+class GaussianMap:
+    """Anisotropic 3D Gaussians in world coordinates.
+
+    Parameters: ``means`` [N, 3] m, ``log_scales`` [N, 3] log m, ``quats`` [N, 4] wxyz
+    (unnormalised), ``opacity_logits`` [N], ``colors`` [N, 3] RGB, plus any strategy extras.
+    Non-parameter state: ``birth_kf`` [N] (keyframe index that created the Gaussian) and
+    ``state`` (per-Gaussian tensors owned by the core, written by the strategy).
+    """
+
+    def __init__(
+        self,
+        device: torch.device,
+        lrs: dict[str, float] | None = None,
+        extra: dict[str, ParamSpec] | None = None,
+        state_dtypes: dict[str, torch.dtype] | None = None,
+    ):
+        self.device = device
+        self.lrs = dict(DEFAULT_LRS if lrs is None else lrs)
+        self.extra = dict(extra or {})
+        shapes = {"means": 3, "log_scales": 3, "quats": 4, "opacity_logits": 0, "colors": 3}
+        shapes.update({k: s.dim for k, s in self.extra.items()})
+        self.lrs.update({k: s.lr for k, s in self.extra.items()})
+        self.params: dict[str, torch.nn.Parameter] = {
+            k: torch.nn.Parameter(torch.empty((0, d) if d else (0,), device=device)) for k, d in shapes.items()
+        }
+        self.birth_kf = torch.empty(0, dtype=torch.long, device=device)
+        self.state: dict[str, torch.Tensor] = {
+            k: torch.empty(0, dtype=dt, device=device) for k, dt in (state_dtypes or {}).items()
+        }
+        self.optimizer = torch.optim.Adam(
+            [{"params": [p], "lr": self.lrs[k], "name": k} for k, p in self.params.items()], eps=1e-15
+        )
+
+    def __len__(self) -> int:
+        return self.params["means"].shape[0]
+
+    def __getattr__(self, name: str) -> torch.Tensor:
+        params = self.__dict__.get("params")
+        if params is not None and name in params:
+            return params[name]
+        raise AttributeError(name)
+
+    @property
+    def opacities(self) -> torch.Tensor:
+        return torch.sigmoid(self.params["opacity_logits"])  # [N]
+
+    def _swap(self, fn) -> None:
+        """Replace every parameter by ``fn(old)`` and carry its Adam moments with it."""
+        for group in self.optimizer.param_groups:
+            old = group["params"][0]
+            new = torch.nn.Parameter(fn(old.detach(), 0.0))
+            st = self.optimizer.state.pop(old, None)
+            if st:
+                for key in ("exp_avg", "exp_avg_sq"):
+                    st[key] = fn(st[key], 0.0)
+                self.optimizer.state[new] = st
+            group["params"][0] = new
+            self.params[group["name"]] = new
+
+    def add(self, values: dict[str, torch.Tensor], keyframe: int) -> None:
+        """Append Gaussians; missing extras take their spec's init, new moments and state are zero."""
+        n = values["means"].shape[0]
+        if n == 0:
+            return
+        full = dict(values)
+        for k, spec in self.extra.items():
+            if k not in full:
+                shape = (n, spec.dim) if spec.dim else (n,)
+                full[k] = torch.full(shape, spec.init, device=self.device)
+        for k in self.params:
+            if k not in full:
+                raise KeyError(f"add() needs '{k}'")
+
+        for group in self.optimizer.param_groups:
+            name = group["name"]
+            old = group["params"][0]
+            new = torch.nn.Parameter(torch.cat([old.detach(), full[name].to(old.dtype)], 0))
+            st = self.optimizer.state.pop(old, None)
+            if st:
+                for key in ("exp_avg", "exp_avg_sq"):
+                    pad = torch.zeros((n, *st[key].shape[1:]), dtype=st[key].dtype, device=self.device)
+                    st[key] = torch.cat([st[key], pad], 0)
+                self.optimizer.state[new] = st
+            group["params"][0] = new
+            self.params[name] = new
+        self.birth_kf = torch.cat([self.birth_kf, torch.full((n,), keyframe, dtype=torch.long, device=self.device)])
+        for k, v in self.state.items():
+            self.state[k] = torch.cat([v, torch.zeros((n, *v.shape[1:]), dtype=v.dtype, device=self.device)])
+
+    def remove(self, keep: torch.Tensor) -> int:
+        """The only removal path: slice params, Adam moments, birth keyframe and state by ``keep`` [N] bool."""
+        if keep.dtype != torch.bool or keep.shape != (len(self),):
+            raise ValueError(f"keep mask must be bool [{len(self)}], got {keep.dtype} {tuple(keep.shape)}")
+        removed = int((~keep).sum())
+        if removed == 0:
+            return 0
+        self._swap(lambda t, _fill: t[keep])
+        self.birth_kf = self.birth_kf[keep]
+        for k, v in self.state.items():
+            self.state[k] = v[keep]
+        return removed
+
+    def state_bytes(self) -> int:
+        """Exact bytes of Gaussian state: params, grads, Adam moments and per-Gaussian state."""
+        total = self.birth_kf.numel() * self.birth_kf.element_size()
+        for p in self.params.values():
+            total += p.numel() * p.element_size()
+            if p.grad is not None:
+                total += p.grad.numel() * p.grad.element_size()
+            st = self.optimizer.state.get(p, {})
+            for key in ("exp_avg", "exp_avg_sq"):
+                if key in st:
+                    total += st[key].numel() * st[key].element_size()
+        for v in self.state.values():
+            total += v.numel() * v.element_size()
+        return total

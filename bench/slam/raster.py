@@ -1,0 +1,267 @@
+"""A differentiable 16x16-tile Gaussian rasterizer in plain PyTorch (CPU and CUDA).
+
+It follows the 3DGS CUDA conventions so that pruning statistics mean what they mean in
+the paper's code: EWA projection with a 0.3 px low-pass, alpha = min(0.99, o exp(-d^T S'^-1 d / 2)),
+contributions below 1/255 skipped, compositing front to back per tile and stopped once
+transmittance would fall below 1e-4. Instead of a per-pixel loop, each tile's depth-sorted
+Gaussian list is padded into a dense block [tiles, 256, K] and composited with a cumulative
+sum of log-transmittance, so autograd provides gradients for every Gaussian and the pose.
+Tiles are grouped by list length before padding to bound wasted work.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from bench.slam.se3 import quat_to_rotmat
+
+TILE_PX = 16
+ALPHA_MIN = 1.0 / 255.0
+ALPHA_MAX = 0.99
+T_MIN = 1e-4
+LOG_T_MIN = math.log(T_MIN)
+LOWPASS_PX2 = 0.3
+CHUNK_ELEMS = 1 << 22  # pixel x Gaussian pairs per composited block
+
+
+@dataclass
+class RasterOutput:
+    """What one render returns; per-Gaussian fields are [N] unless noted and cover every Gaussian."""
+
+    color: torch.Tensor  # [H, W, 3]
+    depth: torch.Tensor  # [H, W] expected z (not normalised by alpha)
+    alpha: torch.Tensor  # [H, W] accumulated opacity (silhouette)
+    means2d: torch.Tensor  # [N, 2] projected centre, px
+    cov2d: torch.Tensor  # [N, 2, 2] screen covariance incl. low-pass, px^2
+    depths: torch.Tensor  # [N] camera z, m
+    radius_px: torch.Tensor  # [N] int, ceil(3 sigma_max); 0 = not rendered
+    tile_id: torch.Tensor  # [N] int, 16x16 tile holding the centre; -1 behind camera / outside image
+    tiles_xy: tuple[int, int]  # tile grid (tiles_x, tiles_y)
+    coverage: torch.Tensor | None  # [N] C_i = sum_p o_i exp(-d^T S'^-1 d / 2) over the image (stats=True)
+    hit_count: torch.Tensor | None  # [N] pixels the Gaussian contributed to (stats=True)
+    max_weight: torch.Tensor | None  # [N] max blending weight alpha*T over pixels (stats=True)
+
+
+def covariance3d(log_scales: torch.Tensor, quats: torch.Tensor) -> torch.Tensor:
+    """R S S^T R^T from log-scales [N, 3] and quaternions [N, 4] -> [N, 3, 3]."""
+    R = quat_to_rotmat(quats)
+    M = R * torch.exp(log_scales)[:, None, :]
+    return M @ M.transpose(1, 2)
+
+
+def project(
+    means: torch.Tensor, cov3d: torch.Tensor, w2c: torch.Tensor, K: torch.Tensor, width: int, height: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """EWA splatting: world Gaussians -> (means2d [N, 2], cov2d [N, 2, 2], z [N])."""
+    R, t = w2c[:3, :3], w2c[:3, 3]
+    p = means @ R.T + t  # [N, 3]
+    z = p[:, 2]
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    zs = torch.where(z.abs() < 1e-6, torch.full_like(z, 1e-6), z)
+    # clamp the Jacobian's lever arm like 3DGS, so Gaussians far off-screen stay bounded
+    lim_x = 1.3 * (0.5 * width / fx)
+    lim_y = 1.3 * (0.5 * height / fy)
+    tx = torch.clamp(p[:, 0] / zs, -lim_x, lim_x) * zs
+    ty = torch.clamp(p[:, 1] / zs, -lim_y, lim_y) * zs
+    zero = torch.zeros_like(z)
+    J = torch.stack(
+        [torch.stack([fx / zs, zero, -fx * tx / zs**2], -1), torch.stack([zero, fy / zs, -fy * ty / zs**2], -1)], -2
+    )  # [N, 2, 3]
+    T = J @ R  # [N, 2, 3]
+    cov2d = T @ cov3d @ T.transpose(1, 2)
+    cov2d = cov2d + LOWPASS_PX2 * torch.eye(2, device=means.device, dtype=means.dtype)
+    means2d = torch.stack([fx * p[:, 0] / zs + cx, fy * p[:, 1] / zs + cy], -1)
+    return means2d, cov2d, z
+
+
+def rasterize(
+    means: torch.Tensor,
+    log_scales: torch.Tensor,
+    quats: torch.Tensor,
+    opacities: torch.Tensor,
+    colors: torch.Tensor,
+    w2c: torch.Tensor,
+    K: torch.Tensor,
+    width: int,
+    height: int,
+    background: torch.Tensor | None = None,
+    near_m: float = 0.05,
+    stats: bool = False,
+) -> RasterOutput:
+    """Render Gaussians (world frame) through camera ``w2c`` [4, 4] with intrinsics ``K`` [3, 3]."""
+    device, dtype = means.device, means.dtype
+    N = means.shape[0]
+    tiles_x = (width + TILE_PX - 1) // TILE_PX
+    tiles_y = (height + TILE_PX - 1) // TILE_PX
+    n_tiles = tiles_x * tiles_y
+
+    cov3d = covariance3d(log_scales, quats)
+    means2d, cov2d, z = project(means, cov3d, w2c, K, width, height)
+    a, b, c = cov2d[:, 0, 0], cov2d[:, 0, 1], cov2d[:, 1, 1]
+    det = a * c - b * b
+    det_safe = torch.where(det > 0, det, torch.ones_like(det))
+    conic = torch.stack([c / det_safe, -b / det_safe, a / det_safe], -1)  # [N, 3] inverse covariance
+
+    with torch.no_grad():
+        mid = 0.5 * (a + c)
+        lam = mid + torch.sqrt(torch.clamp(mid * mid - det, min=0.1))
+        radius = torch.ceil(3.0 * torch.sqrt(lam))
+        m2 = means2d.detach()
+        front = (z > near_m) & (det > 0)
+        tmin_x = torch.clamp(torch.floor((m2[:, 0] - radius) / TILE_PX), 0, tiles_x)
+        tmax_x = torch.clamp(torch.floor((m2[:, 0] + radius) / TILE_PX) + 1, 0, tiles_x)
+        tmin_y = torch.clamp(torch.floor((m2[:, 1] - radius) / TILE_PX), 0, tiles_y)
+        tmax_y = torch.clamp(torch.floor((m2[:, 1] + radius) / TILE_PX) + 1, 0, tiles_y)
+        span_x = (tmax_x - tmin_x).long()
+        span_y = (tmax_y - tmin_y).long()
+        counts = torch.where(front, span_x * span_y, torch.zeros_like(span_x))
+        radius_px = torch.where(counts > 0, radius, torch.zeros_like(radius)).long()
+        inside = front & (m2[:, 0] >= 0) & (m2[:, 0] < width) & (m2[:, 1] >= 0) & (m2[:, 1] < height)
+        tile_id = torch.where(
+            inside,
+            (m2[:, 1].clamp(0, height - 1) // TILE_PX).long() * tiles_x
+            + (m2[:, 0].clamp(0, width - 1) // TILE_PX).long(),
+            torch.full_like(counts, -1),
+        )
+        # (tile, gaussian) pairs, sorted by tile then depth
+        gid = torch.repeat_interleave(torch.arange(N, device=device), counts)
+        if gid.numel():
+            first = torch.cumsum(counts, 0) - counts
+            local = torch.arange(gid.numel(), device=device) - first[gid]
+            sx = span_x[gid].clamp_min(1)
+            tx = tmin_x[gid].long() + local % sx
+            ty = tmin_y[gid].long() + local // sx
+            tid = ty * tiles_x + tx
+            depth_rank = torch.empty(N, dtype=torch.long, device=device)
+            depth_rank[torch.argsort(z.detach())] = torch.arange(N, device=device)
+            order = torch.argsort(tid * N + depth_rank[gid])
+            gid, tid = gid[order], tid[order]
+        else:
+            tid = gid
+        per_tile = torch.bincount(tid, minlength=n_tiles)
+        tile_start = torch.cumsum(per_tile, 0) - per_tile
+        # pixel coordinates of each tile: [n_tiles, 256]
+        ly, lx = torch.meshgrid(
+            torch.arange(TILE_PX, device=device), torch.arange(TILE_PX, device=device), indexing="ij"
+        )
+        tyy = torch.arange(n_tiles, device=device) // tiles_x
+        txx = torch.arange(n_tiles, device=device) % tiles_x
+        px = txx[:, None] * TILE_PX + lx.reshape(1, -1)  # [T, 256]
+        py = tyy[:, None] * TILE_PX + ly.reshape(1, -1)
+        pix_valid = (px < width) & (py < height)
+        pix_lin = torch.where(pix_valid, py * width + px, torch.full_like(px, height * width))
+
+    bg = torch.zeros(3, device=device, dtype=dtype) if background is None else background
+    color_flat = torch.zeros(height * width + 1, 3, device=device, dtype=dtype)
+    depth_flat = torch.zeros(height * width + 1, device=device, dtype=dtype)
+    alpha_flat = torch.zeros(height * width + 1, device=device, dtype=dtype)
+    coverage = torch.zeros(N, device=device, dtype=dtype) if stats else None
+    hit_count = torch.zeros(N, device=device, dtype=torch.long) if stats else None
+    max_weight = torch.zeros(N, device=device, dtype=dtype) if stats else None
+
+    # Sentinel Gaussian at index N: zero opacity, used for padding.
+    m2_ext = torch.cat([means2d, means2d.new_zeros(1, 2)])
+    conic_ext = torch.cat([conic, conic.new_tensor([[1.0, 0.0, 1.0]])])
+    log_op_ext = torch.cat([torch.log(opacities.clamp_min(1e-12)), opacities.new_full((1,), -1e4)])
+    feat_ext = torch.cat([torch.cat([colors, z[:, None]], 1), colors.new_zeros(1, 4)])  # [N+1, 4]
+    fy_, fx_ = (
+        t.reshape(-1).to(dtype)
+        for t in torch.meshgrid(
+            torch.arange(TILE_PX, device=device), torch.arange(TILE_PX, device=device), indexing="ij"
+        )
+    )
+    feat = torch.stack([torch.ones_like(fx_), fx_, fy_, fx_ * fx_, fy_ * fy_, fx_ * fy_], -1)  # [256, 6]
+
+    color_parts, depth_parts, alpha_parts, lin_parts = [], [], [], []
+    tile_order = torch.argsort(per_tile, descending=True)
+    counts_sorted = per_tile[tile_order].tolist()
+    i = 0
+    pix_per_tile = TILE_PX * TILE_PX
+    while i < n_tiles:
+        k_max = counts_sorted[i]
+        n_chunk = max(1, CHUNK_ELEMS // max(1, k_max * pix_per_tile))
+        tiles = tile_order[i : i + n_chunk]
+        i += n_chunk
+        lin = pix_lin[tiles].reshape(-1)
+        if k_max == 0:
+            continue
+        with torch.no_grad():
+            slot = torch.arange(k_max, device=device)
+            idx = tile_start[tiles][:, None] + slot[None, :]  # [t, K]
+            ok = slot[None, :] < per_tile[tiles][:, None]
+            gidx = torch.where(ok, gid[idx.clamp(max=max(gid.numel() - 1, 0))], torch.full_like(idx, N))
+        # The quadratic form, expanded in tile-local pixel coordinates, is one batched matmul:
+        # power + log(o) = feat [256, 6] @ coef [t, 6, K], feat = [1, x, y, x^2, y^2, xy].
+        origin = torch.stack([txx[tiles], tyy[tiles]], -1).to(dtype) * TILE_PX  # [t, 2]
+        mu = m2_ext[gidx] - origin[:, None, :]  # [t, K, 2]
+        co = conic_ext[gidx]  # [t, K, 3] = (A, B, C)
+        A, B, C = co.unbind(-1)
+        mx, my = mu.unbind(-1)
+        coef = torch.stack(
+            [
+                -0.5 * (A * mx * mx + C * my * my) - B * mx * my + log_op_ext[gidx],
+                A * mx + B * my,
+                C * my + B * mx,
+                -0.5 * A,
+                -0.5 * C,
+                -B,
+            ],
+            -2,
+        )  # [t, 6, K]
+        raw_alpha = torch.exp(torch.matmul(feat, coef))  # [t, 256, K]; o * exp(-d^T S^-1 d / 2)
+        with torch.no_grad():
+            keep = raw_alpha >= ALPHA_MIN
+            log_t0 = torch.cumsum(torch.log1p(-torch.clamp(raw_alpha, max=ALPHA_MAX) * keep), dim=-1)
+            keep &= log_t0 >= LOG_T_MIN  # prefix mask: compositing stops once T would drop below 1e-4
+        alpha = torch.where(keep, torch.clamp(raw_alpha, max=ALPHA_MAX), 0.0)
+        log1m = torch.log1p(-alpha)
+        log_t = torch.cumsum(log1m, dim=-1)
+        w = alpha * torch.exp(log_t - log1m)  # [t, 256, K] blending weight alpha * T_exclusive
+        t_final = torch.exp(log_t[..., -1])  # [t, 256]
+        cd = torch.matmul(w, feat_ext[gidx])  # [t, 256, 4] = colour, depth
+        col = cd[..., :3] + t_final[..., None] * bg
+        dep = cd[..., 3]
+        color_parts.append(col.reshape(-1, 3))
+        depth_parts.append(dep.reshape(-1))
+        alpha_parts.append((1.0 - t_final).reshape(-1))
+        lin_parts.append(lin)
+        if stats:
+            with torch.no_grad():
+                valid_pix = pix_valid[tiles][:, :, None].to(dtype)
+                flat_g = gidx[:, None, :].expand_as(w).reshape(-1)
+                coverage.index_add_(
+                    0, flat_g.clamp(max=N - 1), (raw_alpha.detach() * valid_pix).reshape(-1) * (flat_g < N)
+                )
+                hits = (keep & (valid_pix > 0)).reshape(-1)
+                hit_count.index_add_(0, flat_g[hits], torch.ones_like(flat_g[hits]))
+                max_weight.scatter_reduce_(0, flat_g[hits], w.detach().reshape(-1)[hits], reduce="amax")
+
+    # tiles with no Gaussians show the background
+    empty = (per_tile == 0).nonzero().flatten()
+    if empty.numel():
+        lin = pix_lin[empty].reshape(-1)
+        color_parts.append(bg.expand(lin.numel(), 3))
+        depth_parts.append(torch.zeros(lin.numel(), device=device, dtype=dtype))
+        alpha_parts.append(torch.zeros(lin.numel(), device=device, dtype=dtype))
+        lin_parts.append(lin)
+    lin_all = torch.cat(lin_parts)
+    color_flat = color_flat.index_put((lin_all,), torch.cat(color_parts))
+    depth_flat = depth_flat.index_put((lin_all,), torch.cat(depth_parts))
+    alpha_flat = alpha_flat.index_put((lin_all,), torch.cat(alpha_parts))
+    return RasterOutput(
+        color=color_flat[:-1].reshape(height, width, 3),
+        depth=depth_flat[:-1].reshape(height, width),
+        alpha=alpha_flat[:-1].reshape(height, width),
+        means2d=means2d,
+        cov2d=cov2d,
+        depths=z,
+        radius_px=radius_px,
+        tile_id=tile_id,
+        tiles_xy=(tiles_x, tiles_y),
+        coverage=coverage,
+        hit_count=hit_count,
+        max_weight=max_weight,
+    )

@@ -1,0 +1,322 @@
+"""Tracking and keyframe mapping: a SplaTAM-style RGB-D 3DGS-SLAM loop with a pruning hook.
+
+Per frame: the pose is initialised at constant velocity and refined on SE(3) by Adam on a
+twist increment, against L1 colour + lambda_d L1 depth on confidently mapped pixels; the last
+tracking iteration also yields the per-Gaussian gradient norm g_i that pruning strategies use.
+On a keyframe: Gaussians are added where the map is missing or wrong, the map is optimised
+over a window of keyframes, and the strategy's keep mask goes through ``GaussianMap.remove``.
+"""
+
+from __future__ import annotations
+
+import logging
+import random
+from dataclasses import dataclass, field
+
+import torch
+
+from bench.datasets.base import Frame
+from bench.errors import TrackingLost
+from bench.slam.gaussians import DEFAULT_LRS, GaussianMap
+from bench.slam.raster import RasterOutput, rasterize
+from bench.slam.se3 import inverse, se3_exp, so3_log
+from bench.strategy import MappingContext, PruneContext, Strategy, TrackingContext
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class SlamConfig:
+    """Backend hyperparameters; the paper's values where it gives them."""
+
+    tracking_iters: int = 50  # paper: 50 per frame
+    tracking_lr_trans: float = 5e-2  # Adam step on the twist's translation part (m), decayed ...
+    tracking_lr_rot: float = 4e-3  # ... and rotation part (rad)
+    tracking_lr_final: float = 0.1  # ... exponentially to this fraction over the iterations
+    lambda_depth_track: float = 1.0  # paper
+    lambda_depth_map: float = 1.5  # paper
+    silhouette_min: float = 0.99  # tracking uses pixels the map explains with confidence
+    depth_loss_max_m: float = 80.0  # far pixels (sky) only constrain colour
+    mapping_iters: int = 100  # paper: 100 per keyframe
+    mapping_window: int = 5  # keyframes optimised together (current one included)
+    kf_every: int = 5  # a keyframe at least every N frames
+    kf_min_trans_m: float = 2.0  # ... or once the camera moved this far since the last one
+    kf_min_rot_deg: float = 15.0  # ... or turned this much
+    densify_stride: int = 2  # new Gaussians from every N-th pixel in each direction
+    densify_silhouette: float = 0.5  # add where the rendered silhouette is below this
+    densify_depth_err_mult: float = 50.0  # ... or where depth error > mult x median error (SplaTAM)
+    init_opacity: float = 0.95  # opaque seeds: tracking needs a confident silhouette early
+    max_depth_m: float = 150.0  # observed depth beyond this is ignored
+    lrs: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_LRS))
+    lost_residual: float = 0.25  # mean colour L1 on tracked pixels that counts as failure ...
+    lost_patience: int = 3  # ... for this many consecutive frames
+    lost_min_silhouette_frac: float = 0.05  # fewer confidently mapped pixels than this = collapsed
+    seed: int = 0
+
+
+@dataclass
+class FrameResult:
+    w2c: torch.Tensor  # [4, 4] estimated world-to-camera
+    is_keyframe: bool
+    keyframe_index: int | None = None
+    n_added: int = 0
+    n_pruned: int = 0
+    track_loss: float = 0.0
+    track_s: float = 0.0
+    map_s: float = 0.0
+    prune_s: float = 0.0
+
+
+@dataclass
+class _Keyframe:
+    index: int
+    rgb: torch.Tensor  # [H, W, 3]
+    depth: torch.Tensor  # [H, W]
+    w2c: torch.Tensor  # [4, 4]
+
+
+class System:
+    """Owns the map, the keyframes and the pose history of one run."""
+
+    def __init__(
+        self,
+        cfg: SlamConfig,
+        K: torch.Tensor,
+        height: int,
+        width: int,
+        strategy: Strategy,
+        keep_ratio: float,
+        device: torch.device,
+        timer=None,
+    ):
+        self.cfg, self.strategy, self.keep_ratio, self.device = cfg, strategy, keep_ratio, device
+        self.K = K.to(device=device, dtype=torch.float32)
+        self.H, self.W = height, width
+        self.map = GaussianMap(device, lrs=cfg.lrs, extra=strategy.extra_params(), state_dtypes=strategy.state_spec())
+        self.map.state["_track_grad_sum"] = torch.empty(0, device=device)
+        self.map.state["_track_grad_n"] = torch.empty(0, device=device)
+        self.keyframes: list[_Keyframe] = []
+        self.poses: list[torch.Tensor] = []  # w2c per processed frame
+        self.frames_since_kf = 0
+        self._bad_frames = 0
+        self._rng = random.Random(cfg.seed)
+        self._timer = timer
+        ys, xs = torch.meshgrid(torch.arange(height, device=device), torch.arange(width, device=device), indexing="ij")
+        self._pix = torch.stack([xs, ys], -1).float()  # [H, W, 2]
+
+    # ------------------------------------------------------------------ rendering
+    def render(
+        self, w2c: torch.Tensor, stats: bool = False, training: bool = False, iteration: int = 0
+    ) -> RasterOutput:
+        g = self.map
+        op = g.opacities
+        mask = self.strategy.render_mask(MappingContext(len(self.keyframes), iteration, g, g.state, training))
+        if mask is not None:
+            op = op * mask
+        return rasterize(g.means, g.log_scales, g.quats, op, g.colors, w2c, self.K, self.W, self.H, stats=stats)
+
+    def _phase(self, name: str):
+        import contextlib
+
+        return self._timer.phase(name) if self._timer is not None else contextlib.nullcontext()
+
+    # ------------------------------------------------------------------ per frame
+    def process(self, frame: Frame) -> FrameResult:
+        rgb = frame.rgb.to(self.device)
+        depth = frame.depth_m.to(self.device)
+        depth = torch.where((depth > 0) & (depth < self.cfg.max_depth_m), depth, torch.zeros_like(depth))
+        import time
+
+        t0 = time.perf_counter()
+        if not self.poses:
+            w2c = torch.eye(4, device=self.device)
+            loss = 0.0
+        else:
+            with self._phase("tracking"):
+                w2c, loss = self._track(frame.index, rgb, depth)
+        t1 = time.perf_counter()
+        self.poses.append(w2c)
+        self.frames_since_kf += 1
+        result = FrameResult(w2c=w2c, is_keyframe=False, track_loss=loss, track_s=t1 - t0)
+        if self._is_keyframe(w2c):
+            kf_idx = len(self.keyframes)
+            self.keyframes.append(_Keyframe(frame.index, rgb, depth, w2c))
+            with self._phase("mapping"):
+                result.n_added = self._densify(rgb, depth, w2c, kf_idx)
+                self._map(kf_idx)
+            t2 = time.perf_counter()
+            with self._phase("pruning"):
+                result.n_pruned = self._prune(kf_idx, w2c)
+            t3 = time.perf_counter()
+            result.is_keyframe, result.keyframe_index = True, kf_idx
+            result.map_s, result.prune_s = t2 - t1, t3 - t2
+            self.frames_since_kf = 0
+        return result
+
+    def _is_keyframe(self, w2c: torch.Tensor) -> bool:
+        if not self.keyframes:
+            return True
+        if self.frames_since_kf >= self.cfg.kf_every:
+            return True
+        rel = w2c @ inverse(self.keyframes[-1].w2c)
+        trans = float(rel[:3, 3].norm())
+        rot_deg = float(so3_log(rel[:3, :3]).norm()) * 57.29578
+        return trans > self.cfg.kf_min_trans_m or rot_deg > self.cfg.kf_min_rot_deg
+
+    # ------------------------------------------------------------------ tracking
+    def _track(self, frame_index: int, rgb: torch.Tensor, depth: torch.Tensor) -> tuple[torch.Tensor, float]:
+        cfg = self.cfg
+        prev = self.poses[-1]
+        if len(self.poses) >= 2:
+            init = (prev @ inverse(self.poses[-2])) @ prev  # constant velocity
+        else:
+            init = prev.clone()
+        xi = torch.zeros(6, device=self.device, requires_grad=True)
+        opt = torch.optim.Adam([{"params": [xi], "lr": 1.0}])
+        gamma = cfg.tracking_lr_final ** (1.0 / max(1, cfg.tracking_iters - 1))
+        sched = torch.optim.lr_scheduler.ExponentialLR(opt, gamma)
+        scale = torch.tensor([cfg.tracking_lr_trans] * 3 + [cfg.tracking_lr_rot] * 3, device=self.device)
+        params = list(self.map.params.values())
+        for p in params:
+            p.requires_grad_(False)
+        loss_val = float("inf")
+        out = None
+        for it in range(cfg.tracking_iters):
+            last = it == cfg.tracking_iters - 1
+            if last:
+                for p in params:
+                    p.requires_grad_(True)
+            w2c = se3_exp(xi * scale) @ init
+            out = self.render(w2c, stats=last)
+            loss, color_l1 = self._tracking_loss(out, rgb, depth)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            loss_val = float(loss.detach())
+            if last:
+                grad_norm = self._gaussian_grad_norm()
+                self._on_tracked(frame_index, out, grad_norm)
+                for p in params:
+                    p.grad = None
+            else:
+                opt.step()
+                sched.step()
+        w2c = w2c.detach()  # the final iterate: the decayed step size makes it the converged one
+        if not torch.isfinite(w2c).all():
+            raise TrackingLost(f"tracking lost at frame {frame_index}: pose is not finite")
+        sil_frac = float((out.alpha.detach() > cfg.silhouette_min).float().mean())
+        if sil_frac < cfg.lost_min_silhouette_frac:
+            raise TrackingLost(
+                f"tracking lost at frame {frame_index}: silhouette collapsed to {sil_frac:.3f} "
+                f"of pixels (expected >= {cfg.lost_min_silhouette_frac})"
+            )
+        self._bad_frames = self._bad_frames + 1 if float(color_l1) > cfg.lost_residual else 0
+        if self._bad_frames >= cfg.lost_patience:
+            raise TrackingLost(
+                f"tracking lost at frame {frame_index}: colour residual {float(color_l1):.3f} above "
+                f"{cfg.lost_residual} for {self._bad_frames} frames"
+            )
+        return w2c, loss_val
+
+    def _tracking_loss(self, out: RasterOutput, rgb: torch.Tensor, depth: torch.Tensor):
+        mask = out.alpha.detach() > self.cfg.silhouette_min  # [H, W]
+        n = mask.sum().clamp_min(1)
+        color_l1 = ((out.color - rgb).abs().sum(-1) * mask).sum() / (3 * n)
+        dmask = mask & (depth > 0) & (depth < self.cfg.depth_loss_max_m)
+        depth_l1 = ((out.depth - depth).abs() * dmask).sum() / dmask.sum().clamp_min(1)
+        return color_l1 + self.cfg.lambda_depth_track * depth_l1, color_l1.detach()
+
+    def _gaussian_grad_norm(self) -> torch.Tensor:
+        sq = torch.zeros(len(self.map), device=self.device)
+        for p in self.map.params.values():
+            if p.grad is not None:
+                sq += p.grad.reshape(len(self.map), -1).pow(2).sum(1)
+        return sq.sqrt()  # [N]
+
+    def _on_tracked(self, frame_index: int, out: RasterOutput, grad_norm: torch.Tensor) -> None:
+        st = self.map.state
+        st["_track_grad_sum"] += grad_norm
+        st["_track_grad_n"] += 1
+        self.strategy.on_tracking_step(TrackingContext(frame_index, len(self.keyframes), self.map, st, out, grad_norm))
+
+    # ------------------------------------------------------------------ mapping
+    @torch.no_grad()
+    def _densify(self, rgb: torch.Tensor, depth: torch.Tensor, w2c: torch.Tensor, kf_idx: int) -> int:
+        cfg = self.cfg
+        valid = depth > 0
+        if len(self.map):
+            out = self.render(w2c)
+            err = (out.depth - depth).abs()
+            seen = err[valid & (out.alpha > cfg.silhouette_min)]
+            med = seen.median() if seen.numel() else err.new_tensor(float("inf"))
+            need = (out.alpha < cfg.densify_silhouette) | (
+                (err > cfg.densify_depth_err_mult * med) & (out.depth > depth)
+            )
+        else:
+            need = torch.ones_like(valid)
+        s = cfg.densify_stride
+        grid = torch.zeros_like(valid)
+        grid[s // 2 :: s, s // 2 :: s] = True
+        sel = need & valid & grid
+        if not sel.any():
+            return 0
+        z = depth[sel]  # [M]
+        uv = self._pix[sel]  # [M, 2]
+        fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
+        p_cam = torch.stack([(uv[:, 0] - cx) / fx * z, (uv[:, 1] - cy) / fy * z, z], -1)
+        c2w = inverse(w2c)
+        means = p_cam @ c2w[:3, :3].T + c2w[:3, 3]
+        sigma_px = 0.5 * s + 0.25  # neighbouring seeds overlap at about one sigma
+        n = z.shape[0]
+        init_logit = torch.logit(torch.tensor(cfg.init_opacity)).item()
+        self.map.add(
+            {
+                "means": means,
+                "log_scales": torch.log(z * sigma_px / fx)[:, None].repeat(1, 3),
+                "quats": torch.tensor([1.0, 0, 0, 0], device=self.device).repeat(n, 1),
+                "opacity_logits": torch.full((n,), init_logit, device=self.device),
+                "colors": rgb[sel],
+            },
+            keyframe=kf_idx,
+        )
+        return n
+
+    def _map(self, kf_idx: int) -> None:
+        cfg = self.cfg
+        window = [self.keyframes[-1]]
+        older = self.keyframes[:-1]
+        if older:
+            window += self._rng.sample(older, min(len(older), cfg.mapping_window - 1))
+        for p in self.map.params.values():
+            p.requires_grad_(True)
+        opt = self.map.optimizer
+        for it in range(cfg.mapping_iters):
+            kf = window[0] if it % 2 == 0 or len(window) == 1 else self._rng.choice(window[1:])
+            out = self.render(kf.w2c, training=True, iteration=it)
+            color_l1 = (out.color - kf.rgb).abs().mean()
+            dmask = (kf.depth > 0) & (kf.depth < cfg.depth_loss_max_m)
+            depth_l1 = ((out.depth - kf.depth).abs() * dmask).sum() / dmask.sum().clamp_min(1)
+            loss = color_l1 + cfg.lambda_depth_map * depth_l1
+            extra = self.strategy.mapping_loss(MappingContext(kf_idx, it, self.map, self.map.state, True))
+            if extra is not None:
+                loss = loss + extra
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+        opt.zero_grad(set_to_none=True)
+
+    # ------------------------------------------------------------------ pruning
+    def _prune(self, kf_idx: int, w2c: torch.Tensor) -> int:
+        with torch.no_grad():
+            out = self.render(w2c, stats=True)
+        st = self.map.state
+        grad_mean = st["_track_grad_sum"] / st["_track_grad_n"].clamp_min(1)
+        is_new = self.map.birth_kf == kf_idx
+        candidates = (out.tile_id >= 0) & ~is_new
+        ctx = PruneContext(kf_idx, self.map, st, out, grad_mean, is_new, candidates, self.keep_ratio, (self.H, self.W))
+        keep = self.strategy.after_mapping(ctx)
+        st["_track_grad_sum"].zero_()
+        st["_track_grad_n"].zero_()
+        if keep is None:
+            return 0
+        keep = keep.to(torch.bool) | is_new  # new Gaussians are exempt whatever the strategy says
+        return self.map.remove(keep)

@@ -1,0 +1,171 @@
+"""The paper-layout tables: marks, bold best, seeds, relative figures and paper rows, by hand."""
+
+from __future__ import annotations
+
+import io
+from importlib import resources
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from bench.report.render import format_cell, to_markdown
+from bench.report.tables import Table, build_tables
+
+SHARED_PAPER = Path(__file__).resolve().parents[2].parent / "shared" / "paper" / "pocket_slam_tables.csv"
+
+
+def table(report, kind: str, dataset: str) -> Table:
+    return next(t for t in report.tables if t.kind == kind and t.dataset == dataset)
+
+
+def entry(tab: Table, block: str, label: str, column: str, target: str = "md") -> str:
+    """The printed entry of one cell, found by block title, row label and column name."""
+    blk = next(b for b in tab.blocks if b.title == block)
+    row = next(r for r in blk.rows if r.label == label)
+    return format_cell(row.cells[tab.columns.index(column)], blk, target)  # type: ignore[arg-type]
+
+
+POCKET = "Ours (w/ Tile Budget) (keep 0.4)"
+
+
+def test_rows_use_the_paper_names_in_paper_order(report) -> None:
+    labels = [r.label for r in table(report, "accuracy", "kitti").blocks[0].rows if not r.paper]
+    assert labels == [
+        "LSG-SLAM baseline",
+        "LightGaussian",
+        "MaskGaussian",
+        "Ours (w/ Tile Budget) (keep 0.2)",
+        POCKET,
+        "my_prune",  # third-party strategies keep their own name, after the built-ins
+    ]
+
+
+def test_columns_are_sequences_then_avg(report) -> None:
+    assert table(report, "accuracy", "kitti").columns == ["00", "05", "Avg"]
+    assert table(report, "performance", "euroc").columns == ["MH_01_easy", "Avg"]
+
+
+def test_best_per_column_is_bold(report) -> None:
+    acc = table(report, "accuracy", "kitti")
+    assert entry(acc, "ATE [m]", POCKET, "00") == "**0.090 ± 0.000**"
+    assert entry(acc, "ATE [m]", POCKET, "00", "tex") == r"\textbf{0.090\,$\pm$\,0.000}"
+    assert entry(acc, "ATE [m]", "LSG-SLAM baseline", "00") == "0.110 ± 0.014"
+    assert entry(acc, "PSNR [dB]", POCKET, "Avg") == "**26.00**"
+    perf = table(report, "performance", "kitti")
+    assert entry(perf, "FPS", "Ours (w/ Tile Budget) (keep 0.2)", "00") == "**2.50**"
+
+
+def test_a_column_where_all_tie_has_no_bold(report) -> None:
+    acc = table(report, "accuracy", "kitti")
+    ssim = next(b for b in acc.blocks if b.title == "SSIM")
+    assert not any(row.cells[0].bold for row in ssim.rows)
+
+
+def test_lost_is_a_dash_null_is_na_failed_is_failed(report) -> None:
+    acc = table(report, "accuracy", "kitti")
+    assert entry(acc, "ATE [m]", "LightGaussian", "05") == "-"
+    assert entry(acc, "LPIPS", "LightGaussian", "00") == "n/a"
+    assert entry(acc, "ATE [m]", "MaskGaussian", "00") == "failed"
+    assert entry(acc, "ATE [m]", "my_prune", "05") == ""  # never ran
+    perf = table(report, "performance", "kitti")
+    assert entry(perf, "Peak memory [MiB]", "LightGaussian", "05") == "-"
+    assert entry(perf, "Memory vs baseline", "LightGaussian", "05") == "-"
+
+
+def test_mean_and_sample_std_over_seeds(report) -> None:
+    acc = table(report, "accuracy", "kitti")
+    # ATE 0.10, 0.12 -> mean 0.11, sample std 0.01414; PSNR 25, 26 -> 25.5 +- 0.7071
+    assert entry(acc, "ATE [m]", "LSG-SLAM baseline", "00") == "0.110 ± 0.014"
+    assert entry(acc, "PSNR [dB]", "LSG-SLAM baseline", "00") == "25.50 ± 0.71"
+    assert entry(acc, "ATE [m]", "LightGaussian", "00") == "0.500"  # one seed: no std
+    # two ok seeds (0.19, 0.21) and one lost seed, which is counted but not averaged
+    assert entry(acc, "ATE [m]", POCKET, "05") == "**0.200 ± 0.014** (1/3 lost)"
+
+
+def test_avg_is_over_sequences_with_a_value(report) -> None:
+    acc = table(report, "accuracy", "kitti")
+    assert entry(acc, "ATE [m]", "LSG-SLAM baseline", "Avg") == "0.155"  # (0.11 + 0.20) / 2
+    # lost on 05: the paper's convention averages the rest, we say so and do not rank it
+    assert entry(acc, "ATE [m]", "LightGaussian", "Avg") == "0.500 (1/2 seqs)"
+    assert entry(acc, "ATE [m]", "my_prune", "Avg") == "0.150 (1/2 seqs)"
+
+
+def test_relative_to_baseline_by_hand(report) -> None:
+    perf = table(report, "performance", "kitti")
+    # memory: baseline 00 mean(1000, 1100) = 1050, 05 = 2000; pocket 00 mean(400, 420) = 410, 05 = 800
+    assert entry(perf, "Memory vs baseline", POCKET, "00") == "−61.0%"  # 410 / 1050 - 1 = -60.95 %
+    assert entry(perf, "Memory vs baseline", POCKET, "05") == "−60.0%"  # 800 / 2000 - 1
+    assert entry(perf, "Memory vs baseline", POCKET, "Avg") == "−60.3%"  # 605 / 1525 - 1 = -60.33 %
+    assert entry(perf, "Memory vs baseline", POCKET, "Avg", "tex") == r"$-$60.3\%"
+    # FPS: baseline 00 mean(1.0, 1.2) = 1.1, 05 = 0.5; pocket 00 mean(2.0, 2.4) = 2.2, 05 = 1.5
+    assert entry(perf, "FPS vs baseline", POCKET, "00") == "×2.00"
+    assert entry(perf, "FPS vs baseline", POCKET, "05") == "×3.00"
+    assert entry(perf, "FPS vs baseline", POCKET, "Avg") == "×2.31"  # 1.85 / 0.8 = 2.3125
+    # LightGaussian lost 05: its Avg compares the one sequence both have, 500 / 1050 - 1
+    assert entry(perf, "Memory vs baseline", "LightGaussian", "Avg") == "−52.4% (1/2 seqs)"
+    assert entry(perf, "Memory vs baseline", "LSG-SLAM baseline", "00") == "ref"
+    block = next(b for b in perf.blocks if b.title == "Memory vs baseline")
+    row = next(r for r in block.rows if r.label == POCKET)
+    assert row.cells[-1].mean == pytest.approx((605 / 1525 - 1) * 100)
+
+
+def test_missing_baseline_drops_relative_blocks_with_a_warning(report) -> None:
+    tables, warnings = build_tables(report.runs, baseline="nosuch")
+    perf = next(t for t in tables if t.kind == "performance" and t.dataset == "kitti")
+    assert [b.title for b in perf.blocks] == ["Peak memory [MiB]", "FPS"]
+    assert any("no runs of baseline strategy 'nosuch'" in w for w in warnings)
+
+
+def test_other_baseline_is_honoured(report) -> None:
+    tables, _ = build_tables(report.runs, baseline="my_prune")
+    perf = next(t for t in tables if t.kind == "performance" and t.dataset == "kitti")
+    assert entry(perf, "Memory vs baseline", "my_prune", "00") == "ref"
+    assert entry(perf, "Memory vs baseline", "LightGaussian", "00") == "−28.6%"  # 500 / 700 - 1
+
+
+def test_paper_rows_sit_beside_measured_rows(report) -> None:
+    acc = table(report, "accuracy", "kitti")
+    labels = [r.label for r in acc.blocks[0].rows]
+    assert labels.index("(paper) LSG-SLAM") == labels.index("LSG-SLAM baseline") + 1
+    assert labels.index("(paper) Ours (w/ Tile Budget)") == labels.index(POCKET) + 1
+    assert "(paper) LP-3DGS" in labels  # paper methods we did not run still show
+    paper = pd.read_csv(resources.files("bench.report").joinpath("paper_tables.csv").open(), dtype=str)
+
+    def printed(table_: str, dataset: str, method: str, metric: str, seq: str) -> str:
+        hit = paper[
+            (paper.table == table_) & (paper.dataset == dataset) & (paper.method == method)
+            & (paper.metric == metric) & (paper.sequence == seq)
+        ]  # fmt: skip
+        return hit["value"].item()
+
+    assert entry(acc, "ATE [m]", "(paper) LSG-SLAM", "00") == printed("accuracy", "kitti", "LSG-SLAM", "ATE", "00")
+    assert entry(acc, "ATE [m]", "(paper) LightGaussian", "00") == "-"  # lost in the paper too
+    euroc = table(report, "accuracy", "euroc")  # MH_01_easy is the paper's MH01
+    assert entry(euroc, "PSNR [dB]", "(paper) LSG-SLAM", "MH_01_easy") == printed(
+        "accuracy", "euroc", "LSG-SLAM", "PSNR", "MH01"
+    )
+    perf = table(report, "performance", "kitti")
+    gb = printed("performance", "kitti", "Ours", "Memory_GB", "05")
+    assert entry(perf, "Peak memory [MiB]", "(paper) Ours", "05") == f"{gb} GB"
+    base_gb = float(printed("performance", "kitti", "LSG-SLAM", "Memory_GB", "05"))
+    rel = (float(gb) / base_gb - 1) * 100
+    assert entry(perf, "Memory vs baseline", "(paper) Ours", "05") == f"−{abs(rel):.1f}%"
+    assert not any(c.bold for r in acc.blocks[0].rows if r.paper for c in r.cells)
+    assert "(paper) LSG-SLAM" in (report.out / "tables.md").read_text()
+    assert r"\textit{(paper) LSG-SLAM}" in (report.out / "accuracy_kitti.tex").read_text()
+
+
+def test_no_paper_rows_without_the_flag(report) -> None:
+    tables, _ = build_tables(report.runs)
+    assert not any(row.paper for t in tables for b in t.blocks for row in b.rows)
+    assert "(paper)" not in to_markdown(tables[0])
+
+
+def test_packaged_paper_table_matches_shared_copy() -> None:
+    if not SHARED_PAPER.is_file():
+        pytest.skip(f"shared paper table not found at {SHARED_PAPER}")
+    packaged = resources.files("bench.report").joinpath("paper_tables.csv").read_text(encoding="utf-8")
+    assert packaged == SHARED_PAPER.read_text(encoding="utf-8")
+    frame = pd.read_csv(io.StringIO(packaged), dtype=str, keep_default_na=False)
+    assert list(frame.columns) == ["table", "dataset", "method", "metric", "sequence", "value"]
