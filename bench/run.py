@@ -82,7 +82,7 @@ def run_keys(cfg: DictConfig) -> dict[str, Any]:
         "dataset": cfg.dataset.name,
         "seq": _seq_name(cfg),
         "seed": int(cfg.seed),
-        "keep_ratio": float(cfg.prune.keep_ratio),
+        "keep_ratio": float(cfg.prune.keep_ratio) if strategy else None,  # meaningless without pruning
     }
 
 
@@ -341,6 +341,7 @@ def _evaluate(
             targets.append(seq[i].rgb)
     lp = LPIPS.from_weights(ev.get("lpips_weights"), device=device) if ev.get("lpips", True) else None
     img = image_metrics(preds, targets, lpips=lp)
+    img.pop("num_frames", None)  # that count is res["eval_frames"]; metrics["num_frames"] is frames tracked
     res.update({k: _finite_or_none(v) if isinstance(v, float) else v for k, v in img.items()})
     res["eval_frames"] = len(idx)
     return res

@@ -77,9 +77,7 @@ def _load_state(path: Path, what: str) -> dict[str, torch.Tensor]:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # pickle/zip errors of many kinds; the message is what matters
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise MetricError(
-            f"cannot load {what} {path}: expected a torch state dict, found error: {msg}"
-        ) from None
+        raise MetricError(f"cannot load {what} {path}: expected a torch state dict, found error: {msg}") from None
     if isinstance(state, dict) and "state_dict" in state and isinstance(state["state_dict"], dict):
         state = state["state_dict"]
     if not isinstance(state, dict):
@@ -90,9 +88,7 @@ def _load_state(path: Path, what: str) -> dict[str, torch.Tensor]:
 class LPIPS:
     """Learned perceptual distance (AlexNet, LPIPS v0.1); 0 = identical, larger = more different."""
 
-    def __init__(
-        self, features: nn.Sequential, lins: nn.ModuleList, device: torch.device | str = "cpu"
-    ) -> None:
+    def __init__(self, features: nn.Sequential, lins: nn.ModuleList, device: torch.device | str = "cpu") -> None:
         self.device = torch.device(device)
         self.features = features.eval().to(self.device)
         self.lins = lins.eval().to(self.device)
@@ -111,9 +107,7 @@ class LPIPS:
         candidates = [Path(path).expanduser()] if path else default_checkpoint_paths()
         found = next((p for p in candidates if p.is_file()), None)
         if found is None:
-            logger.warning(
-                "lpips disabled: no alexnet checkpoint found, looked at %s", ", ".join(map(str, candidates))
-            )
+            logger.warning("lpips disabled: no alexnet checkpoint found, looked at %s", ", ".join(map(str, candidates)))
             return None
         lin_path = torchmetrics_linear_weights_path()
         if not lin_path.is_file():
@@ -136,8 +130,7 @@ class LPIPS:
                 value = backbone_state[key]
                 if tuple(value.shape) != shape:
                     raise MetricError(
-                        f"alexnet checkpoint {found}: '{key}' expected shape {list(shape)}, "
-                        f"found {list(value.shape)}"
+                        f"alexnet checkpoint {found}: '{key}' expected shape {list(shape)}, found {list(value.shape)}"
                     )
                 fstate[f"{idx}.{name}"] = value.float()
         features.load_state_dict(fstate, strict=True)
@@ -147,9 +140,7 @@ class LPIPS:
         for i, c in enumerate(LPIPS_CHANNELS):
             key = f"lin{i}.model.1.weight"  # torchmetrics names (dropout at .0, conv at .1)
             if key not in lin_state or tuple(lin_state[key].shape) != (1, c, 1, 1):
-                raise MetricError(
-                    f"lpips linear weights {lin_path}: expected '{key}' of shape [1, {c}, 1, 1]"
-                )
+                raise MetricError(f"lpips linear weights {lin_path}: expected '{key}' of shape [1, {c}, 1, 1]")
             lins[i].weight.data.copy_(lin_state[key].float())
         logger.info("lpips: alexnet backbone from %s, linear heads from %s", found, lin_path)
         return cls(features, lins, device)
@@ -171,8 +162,7 @@ class LPIPS:
             )
         if min(preds.shape[1:3]) < MIN_SIDE_PX:
             raise MetricError(
-                f"lpips needs images of at least {MIN_SIDE_PX}x{MIN_SIDE_PX} px: "
-                f"found {list(preds.shape[1:3])}"
+                f"lpips needs images of at least {MIN_SIDE_PX}x{MIN_SIDE_PX} px: found {list(preds.shape[1:3])}"
             )
         lo = min(float(preds.min()), float(targets.min()))
         hi = max(float(preds.max()), float(targets.max()))

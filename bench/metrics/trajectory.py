@@ -12,7 +12,6 @@ quaternion is w, x, y, z like evo.
 
 from __future__ import annotations
 
-import copy
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -126,7 +125,10 @@ def write_tum(path: str | Path, traj: Trajectory) -> None:
 def _associate_align(
     est: Trajectory, gt: Trajectory, align: str, max_diff_s: float
 ) -> tuple[PoseTrajectory3D, PoseTrajectory3D]:
-    """Associate by nearest timestamp and align ``est`` onto ``gt``; returns (gt, est) evo copies."""
+    """Associate by nearest timestamp and align ``est`` onto ``gt``; returns (gt, est) evo copies.
+
+    ``associate_trajectories`` returns copies, so aligning in place leaves the inputs untouched.
+    """
     if align not in ALIGNMENTS:
         raise MetricError(f"unknown alignment: expected one of {', '.join(ALIGNMENTS)}, found {align!r}")
     if not max_diff_s > 0:
@@ -142,7 +144,6 @@ def _associate_align(
             f"too few associated poses: expected at least {MIN_POSES}, found {count} "
             f"(max timestamp difference {max_diff_s} s; estimate {len(est)} poses, ground truth {len(gt)})"
         )
-    traj_est = copy.deepcopy(traj_est)
     if align != "none":
         try:
             traj_est.align(traj_ref, correct_scale=(align == "sim3"))
@@ -171,9 +172,7 @@ def ate(est: Trajectory, gt: Trajectory, align: str = "se3", max_diff_s: float =
     }
 
 
-def rpe(
-    est: Trajectory, gt: Trajectory, align: str = "se3", max_diff_s: float = 0.01, delta_frames: int = 1
-) -> dict:
+def rpe(est: Trajectory, gt: Trajectory, align: str = "se3", max_diff_s: float = 0.01, delta_frames: int = 1) -> dict:
     """Relative pose error between poses ``delta_frames`` apart (drift per step).
 
     Rigid alignment does not change RPE; ``sim3`` matters because it fixes the scale first.

@@ -21,7 +21,8 @@ from bench.report.names import method_name
 
 STATUSES: tuple[str, ...] = ("ok", "lost", "failed", "running")
 RUN_KEYS: tuple[str, ...] = ("strategy", "dataset", "seq", "seed", "keep_ratio", "config_hash")
-REQUIRED_RUN_KEYS: tuple[str, ...] = ("strategy", "dataset", "seq")
+REQUIRED_RUN_KEYS: tuple[str, ...] = ("strategy", "dataset")
+DEFAULT_SEQ = "default"  # the harness writes seq null when a dataset ran its default sequence
 # Known metrics in the harness's order; unknown numeric metrics are kept and appended.
 METRIC_KEYS: tuple[str, ...] = (
     "ate_rmse_m", "ate_alignment", "ate_num_poses", "psnr_db", "ssim", "lpips", "eval_frames",
@@ -30,6 +31,7 @@ METRIC_KEYS: tuple[str, ...] = (
     "cuda_reserved_peak_mib", "peak_mem_mib",
 )  # fmt: skip
 TEXT_METRICS: frozenset[str] = frozenset({"ate_alignment"})
+NUMERIC_METRICS: frozenset[str] = frozenset(METRIC_KEYS) - TEXT_METRICS
 
 
 class ReportError(BenchError):
@@ -71,6 +73,24 @@ def _number(key: str, value: Any) -> int | float | None:
     return value
 
 
+def _flat_metrics(metrics: dict[str, Any]) -> dict[str, Any]:
+    """Known metrics must be numbers or null; anything else the harness adds (a per-phase time
+    dict, the probe behind the peak, a frame range) is kept for runs.csv: dicts one level flat as
+    ``key.sub``, lists as json text."""
+    out: dict[str, Any] = {}
+    for key, value in metrics.items():
+        if key in NUMERIC_METRICS:
+            out[key] = _number(key, value)
+        elif isinstance(value, dict):
+            for sub, item in value.items():
+                out[f"{key}.{sub}"] = json.dumps(item) if isinstance(item, (dict, list)) else item
+        elif isinstance(value, list):
+            out[key] = json.dumps(value)
+        else:
+            out[key] = value
+    return out
+
+
 def read_run(run_dir: Path) -> dict[str, Any]:
     """One flat row from ``run_dir/metrics.json``; ``ReportError`` says what is malformed."""
     path = Path(run_dir) / "metrics.json"
@@ -88,7 +108,7 @@ def read_run(run_dir: Path) -> dict[str, Any]:
     run = data.get("run")
     if not isinstance(run, dict) or any(run.get(k) in (None, "") for k in REQUIRED_RUN_KEYS):
         keys = sorted(run) if isinstance(run, dict) else type(run).__name__
-        raise ReportError(f"expected run.strategy, run.dataset, run.seq in {path}, found {keys}")
+        raise ReportError(f"expected run.strategy and run.dataset in {path}, found {keys}")
     metrics = data.get("metrics")
     if metrics is None and status == "failed":
         metrics = {}
@@ -101,7 +121,7 @@ def read_run(run_dir: Path) -> dict[str, Any]:
     try:
         keep_ratio = _number("run.keep_ratio", run.get("keep_ratio"))
         keep_ratio = None if keep_ratio is None else float(keep_ratio)
-        values = {key: (value if key in TEXT_METRICS else _number(key, value)) for key, value in metrics.items()}
+        values = _flat_metrics(metrics)
     except ReportError as exc:
         raise ReportError(f"{exc} in {path}") from None
 
@@ -109,7 +129,7 @@ def read_run(run_dir: Path) -> dict[str, Any]:
         "strategy": str(run["strategy"]),
         "method": method_name(str(run["strategy"])),
         "dataset": str(run["dataset"]),
-        "seq": str(run["seq"]),
+        "seq": DEFAULT_SEQ if run.get("seq") in (None, "") else str(run["seq"]),
         "seed": seed,
         "keep_ratio": keep_ratio,
         "config_hash": run.get("config_hash"),
@@ -118,7 +138,11 @@ def read_run(run_dir: Path) -> dict[str, Any]:
     }
     for key in METRIC_KEYS:
         row[key] = values.pop(key, None)
-    row.update(sorted(values.items()))
+    for key, value in sorted(values.items()):
+        if key not in row:
+            row[key] = value
+        elif row[key] != value:  # e.g. metrics.keep_ratio disagreeing with run.keep_ratio
+            row[f"metrics.{key}"] = value
     provenance = data.get("provenance") if isinstance(data.get("provenance"), dict) else {}
     for key in ("git_commit", "git_dirty", "device"):
         row[key] = provenance.get(key)

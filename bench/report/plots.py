@@ -96,9 +96,13 @@ def read_keyframes(run_dir: Path, warn: Warn) -> pd.DataFrame | None:
 
 
 def peak_column(run: pd.Series, keyframes: pd.DataFrame) -> str | None:
-    """The keyframes.csv column behind the run's headline ``peak_mem_mib``."""
+    """The keyframes.csv column behind the run's headline ``peak_mem_mib``: the one the harness
+    names in ``peak_mem_source``, else the one whose run peak equals the headline."""
     headline = run.get("peak_mem_mib")
     present = [c for c in PEAK_COLUMNS if c in keyframes.columns and keyframes[c].notna().any()]
+    source = run.get("peak_mem_source")
+    if not is_missing(source) and f"{source}_peak_mib" in present:
+        return f"{source}_peak_mib"
     if not is_missing(headline):
         for column in present:
             value = run.get(column)
@@ -188,12 +192,14 @@ def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool) -> tuple[float, 
     return scale, rot, mu_d - scale * rot @ mu_s
 
 
-def aligned_positions(est: np.ndarray, gt: np.ndarray | None, alignment: str) -> np.ndarray:
+def aligned_positions(
+    est: np.ndarray, gt: np.ndarray | None, alignment: str, max_dt_s: float = ASSOCIATE_MAX_DT_S
+) -> np.ndarray:
     """Estimated positions in the ground-truth frame, aligned the way the ATE was computed."""
     xyz = est[:, 1:4]
     if gt is None or alignment not in ("se3", "sim3"):
         return xyz
-    i_est, i_gt = associate(est[:, 0], gt[:, 0])
+    i_est, i_gt = associate(est[:, 0], gt[:, 0], max_dt_s)
     if len(i_est) < 3:
         return xyz
     s, rot, t = umeyama(xyz[i_est], gt[i_gt, 1:4], with_scale=alignment == "sim3")
@@ -218,7 +224,9 @@ def plot_trajectory(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn:
         gt = run_gt if gt is None else gt
         alignment = run.get("ate_alignment")
         alignment = "se3" if is_missing(alignment) else str(alignment)
-        paths.append((variant, aligned_positions(est, run_gt, alignment), run["status"] == "lost"))
+        max_dt = run.get("ate_max_diff_s")
+        max_dt = ASSOCIATE_MAX_DT_S if is_missing(max_dt) else float(max_dt)
+        paths.append((variant, aligned_positions(est, run_gt, alignment, max_dt), run["status"] == "lost"))
     if not paths:
         return None
     extent_source = gt[:, 1:4] if gt is not None else np.vstack([p for _, p, _ in paths])

@@ -14,7 +14,7 @@ from typing import Literal
 import pandas as pd
 
 from bench.report.collect import is_missing
-from bench.report.names import dataset_name, method_name, paper_sequence, sequence_sort_key, strategy_rank
+from bench.report.names import dataset_name, file_token, method_name, paper_sequence, sequence_sort_key, strategy_rank
 from bench.report.paper import LOST, PAPER_METRIC, PAPER_STRATEGY, PAPER_UNIT, paper_values
 
 CellKind = Literal["num", "lost", "na", "failed", "empty", "ref"]
@@ -69,7 +69,7 @@ class Table:
 
     @property
     def name(self) -> str:
-        return f"{self.kind}_{self.dataset}"
+        return f"{self.kind}_{file_token(self.dataset)}"
 
 
 @dataclass(frozen=True)
@@ -312,7 +312,7 @@ def _relative_block(
     style: Style,
     source: Block,
     measured: dict[Variant, list[Cell]],
-    baseline: Variant,
+    baseline: Baseline,
     paper: dict[str, list[Cell]],
 ) -> Block:
     by_label = {v.label: (v, cells) for v, cells in measured.items()}
@@ -328,23 +328,41 @@ def _relative_block(
             rel = [Cell("ref")] * len(cells) if is_base else relative_cells(cells, paper_base, style)
         else:
             variant, cells = by_label[row.label]
-            is_base = variant == baseline
-            rel = [Cell("ref")] * len(cells) if is_base else relative_cells(cells, measured[baseline], style)
+            if variant.strategy == baseline.default.strategy:
+                rel = [Cell("ref")] * len(cells)
+            else:
+                rel = relative_cells(cells, measured[baseline.for_variant(variant)], style)
         rows.append(Row(row.label, rel, paper=row.paper))
     decimals = 1 if style == "percent" else 2
     return Block(title, None, style, decimals, rows)
 
 
-def pick_baseline(found: list[Variant], baseline: str) -> tuple[Variant | None, str | None]:
-    """The measured row every other row is compared with; a warning when it is ambiguous."""
+@dataclass(frozen=True)
+class Baseline:
+    """The measured row(s) others are compared with. A baseline that ran at several keep ratios
+    (a sweep over ``prune.keep_ratio`` that includes ``none``) pairs each row with the baseline
+    at the same keep ratio, falling back to ``default``."""
+
+    default: Variant
+    by_keep: dict[float | None, Variant]
+
+    def for_variant(self, variant: Variant) -> Variant:
+        return self.by_keep.get(variant.keep_ratio, self.default)
+
+
+def pick_baseline(found: list[Variant], baseline: str) -> tuple[Baseline | None, str | None]:
+    """The baseline rows for one dataset; a warning when it ran at several keep ratios."""
     candidates = [v for v in found if v.strategy == baseline]
     if not candidates:
         return None, None
+    chosen = ([v for v in candidates if v.keep_ratio in (None, 1.0)] or candidates)[0]
+    result = Baseline(chosen, {v.keep_ratio: v for v in candidates})
     if len(candidates) == 1:
-        return candidates[0], None
-    preferred = [v for v in candidates if v.keep_ratio in (None, 1.0)] or candidates
-    chosen = preferred[0]
-    return chosen, f"baseline '{baseline}' ran at several keep ratios; relative rows use '{chosen.label}'"
+        return result, None
+    return result, (
+        f"baseline '{baseline}' ran at several keep ratios; each row is compared with the baseline at its "
+        f"own keep ratio, else with '{chosen.label}'"
+    )
 
 
 def accuracy_table(runs: pd.DataFrame, dataset: str, paper: pd.DataFrame | None = None) -> Table:
@@ -395,7 +413,10 @@ def performance_table(
     blocks.append(fps)
     if base is not None:
         blocks.append(_relative_block("FPS vs baseline", "times", fps, fps_cells, base, fps_paper))
-        notes.append(f"Baseline: {base.label}.")
+        several = len(base.by_keep) > 1
+        notes.append(
+            f"Baseline: {base.default.label}" + (" (or the baseline at the same keep ratio)." if several else ".")
+        )
     else:
         warnings.append(f"{dataset}: no runs of baseline strategy '{baseline}', relative rows left out")
         notes.append(f"No runs of baseline strategy '{baseline}': relative rows left out.")

@@ -180,7 +180,7 @@ class System:
         for p in params:
             p.requires_grad_(False)
         loss_val = float("inf")
-        out = None
+        out = mask = None
         for it in range(cfg.tracking_iters):
             last = it == cfg.tracking_iters - 1
             if last:
@@ -188,7 +188,9 @@ class System:
                     p.requires_grad_(True)
             w2c = se3_exp(xi * scale) @ init
             out = self.render(w2c, stats=last)
-            loss, color_l1 = self._tracking_loss(out, rgb, depth)
+            if mask is None:  # fixed at the initial pose, so the pose cannot lower the loss by choosing pixels
+                mask = out.alpha.detach() > cfg.silhouette_min
+            loss, color_l1 = self._tracking_loss(out, rgb, depth, mask)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             loss_val = float(loss.detach())
@@ -217,8 +219,11 @@ class System:
             )
         return w2c, loss_val
 
-    def _tracking_loss(self, out: RasterOutput, rgb: torch.Tensor, depth: torch.Tensor):
-        mask = out.alpha.detach() > self.cfg.silhouette_min  # [H, W]
+    def _tracking_loss(self, out: RasterOutput, rgb: torch.Tensor, depth: torch.Tensor,
+                       mask: torch.Tensor | None = None):
+        """L1 colour + lambda_d L1 depth, averaged over ``mask`` [H, W] (default: confident silhouette)."""
+        if mask is None:
+            mask = out.alpha.detach() > self.cfg.silhouette_min
         n = mask.sum().clamp_min(1)
         color_l1 = ((out.color - rgb).abs().sum(-1) * mask).sum() / (3 * n)
         dmask = mask & (depth > 0) & (depth < self.cfg.depth_loss_max_m)

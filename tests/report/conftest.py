@@ -39,6 +39,12 @@ def write_run(
         "cpu_rss_peak_mib": 900.0, "torch_live_peak_mib": 300.0, "cuda_alloc_peak_mib": None,
         "cuda_reserved_peak_mib": None, "peak_mem_mib": 300.0,
     }  # fmt: skip
+    # what the real harness adds beside the documented metrics (bench/run.py)
+    values.update(
+        peak_mem_source="torch_live", ate_mean_m=0.09, ate_max_m=0.2, ate_max_diff_s=0.01, ate_frames=[0, 19],
+        path_length_m=4.1, phase_s={"track": 10.0, "map": 8.0}, memory_method={"cpu_rss": "psutil", "torch_live": True},
+        keep_ratio=keep_ratio,
+    )  # fmt: skip
     values.update(metrics)
     if "peak_mem_mib" in metrics:
         values["torch_live_peak_mib"] = metrics["peak_mem_mib"]
@@ -68,8 +74,9 @@ def write_run(
     gt = np.column_stack([t, 2.0 * t, 0.01 * t, np.sin(t), np.zeros((20, 3)), np.ones(20)])
     est = gt.copy()
     est[:, 1:4] = gt[:, 1:4] @ _rot_y(0.3).T + np.array([1.0, 0.0, -0.5]) + 0.01 * (seed + 1)
-    np.savetxt(run_dir / "traj_gt.txt", gt, fmt="%.6f")
-    np.savetxt(run_dir / "traj_est.txt", est, fmt="%.6f")
+    header = "timestamp tx ty tz qx qy qz qw"
+    np.savetxt(run_dir / "traj_gt.txt", gt, fmt="%.9g", header=header)
+    np.savetxt(run_dir / "traj_est.txt", est, fmt="%.9g", header=header)
 
     rng = np.random.default_rng(seed)
     counts = rng.poisson(2.0 if strategy == "none" else 0.8, size=(12, 16))

@@ -77,7 +77,7 @@ def test_only_malformed_runs_is_an_error(tmp_path: Path) -> None:
     ("change", "message"),
     [
         ({"status": "done"}, "expected status one of ok|lost|failed|running"),
-        ({"run": {"strategy": "none", "dataset": "kitti"}}, r"expected run.strategy, run.dataset, run.seq"),
+        ({"run": {"strategy": "none", "seq": "00"}}, r"expected run.strategy and run.dataset"),
         ({"metrics": "oops"}, "expected a 'metrics' object"),
         ({"metrics": {"fps": "fast"}}, "expected a number or null for 'fps', found 'fast'"),
         ({"run": {"strategy": "none", "dataset": "kitti", "seq": "00", "seed": "zero"}}, "integer run.seed"),
@@ -99,6 +99,21 @@ def test_failed_run_with_empty_metrics_is_a_row(tmp_path: Path, make_run) -> Non
     assert row["ate_rmse_m"] is None and row["peak_mem_mib"] is None
     assert row["error"] == "cuda out of memory"
     assert row["method"] == "MaskGaussian"
+
+
+def test_harness_extras_are_kept_flat(tmp_path: Path, make_run) -> None:
+    row = read_run(make_run(tmp_path / "0", strategy="pocket", seq="00"))
+    assert row["phase_s.track"] == 10.0 and row["memory_method.torch_live"] is True
+    assert row["ate_frames"] == "[0, 19]" and row["peak_mem_source"] == "torch_live"
+    assert row["keep_ratio"] == 0.4 and "metrics.keep_ratio" not in row  # same value as run.keep_ratio
+
+
+def test_null_seq_is_the_default_sequence(tmp_path: Path, make_run) -> None:
+    run_dir = make_run(tmp_path / "0", strategy="none", seq="00", dataset="synthetic")
+    doc = json.loads((run_dir / "metrics.json").read_text())
+    doc["run"]["seq"] = None
+    (run_dir / "metrics.json").write_text(json.dumps(doc))
+    assert read_run(run_dir)["seq"] == "default"
 
 
 def test_method_names_follow_the_paper() -> None:

@@ -124,6 +124,21 @@ def test_other_baseline_is_honoured(report) -> None:
     assert entry(perf, "Memory vs baseline", "LightGaussian", "00") == "−28.6%"  # 500 / 700 - 1
 
 
+def test_baseline_at_several_keep_ratios_pairs_by_ratio(tmp_path: Path, make_run) -> None:
+    from bench.report.collect import collect
+
+    for i, (strategy, keep, mem) in enumerate([("none", 0.2, 1000.0), ("none", 0.4, 800.0), ("pocket", 0.2, 250.0),
+                                               ("pocket", 0.4, 400.0), ("mask", 0.3, 500.0)]):  # fmt: skip
+        make_run(tmp_path / str(i), strategy=strategy, seq="00", keep_ratio=keep, peak_mem_mib=mem)
+    tables, warnings = build_tables(collect([tmp_path]).runs)
+    perf = next(t for t in tables if t.kind == "performance")
+    assert entry(perf, "Memory vs baseline", "Ours (w/ Tile Budget) (keep 0.2)", "00") == "−75.0%"  # 250 / 1000
+    assert entry(perf, "Memory vs baseline", "Ours (w/ Tile Budget) (keep 0.4)", "00") == "−50.0%"  # 400 / 800
+    assert entry(perf, "Memory vs baseline", "MaskGaussian", "00") == "−50.0%"  # no 0.3 baseline: the first one
+    assert entry(perf, "Memory vs baseline", "LSG-SLAM baseline (keep 0.4)", "00") == "ref"
+    assert any("several keep ratios" in w for w in warnings)
+
+
 def test_paper_rows_sit_beside_measured_rows(report) -> None:
     acc = table(report, "accuracy", "kitti")
     labels = [r.label for r in acc.blocks[0].rows]

@@ -1,0 +1,31 @@
+"""Pocket-SLAM without the tile budget (the paper's ablation): one global top-N_tar by area score."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import torch
+
+from bench.strategy import PruneContext, Strategy, top_k_keep
+from strategies._area import AREA_MODES, area_score, check_choice
+
+
+@dataclass
+class AreaPruning(Strategy):
+    """Keep the N_tar candidates with the largest rendering-area share S_i (Eqs. 5-6), wherever they are.
+
+    Without per-tile budgets, a few large Gaussians (sky, walls) can take the whole budget and
+    empty textured regions; that is what the ablation measures.
+    """
+
+    description: ClassVar[str] = "rendering-area score, one global budget (pocket without tile budget)"
+
+    area: str = "exact"  # C_i: exact | analytic | radius (as in pocket)
+
+    def __post_init__(self) -> None:
+        check_choice("area", "area", self.area, AREA_MODES)
+
+    def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
+        score = area_score(ctx.raster, ctx.gaussians.opacities, self.area)  # [N]
+        return top_k_keep(score, ctx.candidates, ctx.n_target) | ctx.is_new

@@ -1,0 +1,102 @@
+"""MaskGaussian: a learnable keep/drop mask per Gaussian, sampled with straight-through Gumbel-softmax.
+
+Each Gaussian carries one logit l_i, the log-odds of "keep" (the 2-class keep/drop logits are
+[l_i, 0]; MaskGaussian initialises its two scores to [10, 1], i.e. l = 9). During mapping the
+renderer multiplies opacity by a sampled hard mask in {0, 1} whose gradient is the soft sample's,
+so masking is learned from the rendering loss plus a sparsity term on the mean keep probability.
+Outside training the mask is deterministic: kept iff p_keep = sigmoid(l_i) > 0.5.
+
+Deletion is deferred: a masked Gaussian stays in memory (and in the optimizer) without rendering,
+and is removed only once it has been masked at ``masked_keyframes`` consecutive keyframes. The
+shared keep ratio is therefore ignored on purpose: how many Gaussians go is decided by the learned
+mask, not by N_tar. The paper attributes MaskGaussian's weak memory savings to this deferral.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import torch
+
+from bench.slam.gaussians import GaussianMap, ParamSpec
+from bench.strategy import MappingContext, PruneContext, Strategy
+from strategies._area import check, is_int
+
+PARAM_LOGITS = "mask_logits"  # [N] log-odds of keep, owned and optimised by the core
+STATE_MASKED_RUN = "mask_masked_keyframes"  # [N] consecutive keyframes the Gaussian has ended masked
+
+
+@dataclass
+class MaskPruning(Strategy):
+    """Learned per-Gaussian masks; delete after M consecutive masked keyframes (ignores ctx.keep_ratio)."""
+
+    description: ClassVar[str] = "MaskGaussian: learned Gumbel-softmax masks, deferred deletion"
+
+    gumbel_tau: float = 1.0  # Gumbel-softmax temperature (MaskGaussian uses torch's default, 1)
+    sparsity_weight: float = 5e-4  # lambda_m on mean keep probability (MaskGaussian's lambda_mask)
+    mask_lr: float = 0.01  # Adam step on the logits (MaskGaussian's mask_lr)
+    init_keep_logit: float = 9.0  # log-odds of keep for new Gaussians (MaskGaussian's [10, 1] init)
+    masked_keyframes: int = 5  # M: delete once masked at this many consecutive keyframes (pocketbench choice)
+    seed: int = 0  # seeds the Gumbel noise, so runs are reproducible
+
+    def __post_init__(self) -> None:
+        check("mask", self.gumbel_tau > 0, f"gumbel_tau must be > 0; got {self.gumbel_tau!r}")
+        check("mask", self.sparsity_weight >= 0, f"sparsity_weight must be >= 0; got {self.sparsity_weight!r}")
+        check("mask", self.mask_lr > 0, f"mask_lr must be > 0; got {self.mask_lr!r}")
+        check("mask", is_int(self.masked_keyframes) and self.masked_keyframes >= 1,
+              f"masked_keyframes must be an integer >= 1; got {self.masked_keyframes!r}")
+        check("mask", is_int(self.seed), f"seed must be an integer; got {self.seed!r}")
+        self._generators: dict[torch.device, torch.Generator] = {}  # not a field: runtime state, one per device
+
+    # ------------------------------------------------------------------ contract
+    def extra_params(self) -> dict[str, ParamSpec]:
+        return {PARAM_LOGITS: ParamSpec(init=self.init_keep_logit, lr=self.mask_lr)}
+
+    def state_spec(self) -> dict[str, torch.dtype]:
+        return {STATE_MASKED_RUN: torch.int32}
+
+    def render_mask(self, ctx: MappingContext) -> torch.Tensor:
+        logits = ctx.gaussians.params[PARAM_LOGITS]  # [N]
+        if not ctx.training:
+            return self.hard_mask(logits).to(logits.dtype)
+        return self.sample(logits)
+
+    def masked_count(self, gaussians: GaussianMap, state: dict[str, torch.Tensor]) -> int:
+        return int((~self.hard_mask(gaussians.params[PARAM_LOGITS])).sum())
+
+    def mapping_loss(self, ctx: MappingContext) -> torch.Tensor | None:
+        logits = ctx.gaussians.params[PARAM_LOGITS]  # [N]
+        if not ctx.training or logits.numel() == 0 or self.sparsity_weight == 0:
+            return None
+        return self.sparsity_weight * torch.sigmoid(logits).mean()
+
+    def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
+        masked = ~self.hard_mask(ctx.gaussians.params[PARAM_LOGITS])  # [N]
+        run = ctx.state[STATE_MASKED_RUN]  # [N]
+        run.copy_(torch.where(masked, run + 1, torch.zeros_like(run)))  # unmasked -> the count restarts
+        return (run < self.masked_keyframes) | ctx.is_new
+
+    # ------------------------------------------------------------------ helpers
+    @staticmethod
+    def hard_mask(logits: torch.Tensor) -> torch.Tensor:
+        """[N] bool: kept iff p_keep = sigmoid(l) > 0.5, i.e. l > 0."""
+        return logits.detach() > 0
+
+    def _generator(self, device: torch.device) -> torch.Generator:
+        gen = self._generators.get(device)
+        if gen is None:
+            gen = torch.Generator(device=device)
+            gen.manual_seed(self.seed)
+            self._generators[device] = gen
+        return gen
+
+    def sample(self, logits: torch.Tensor) -> torch.Tensor:
+        """[N] straight-through Gumbel-softmax keep sample: exactly 0/1 forward, soft gradient backward."""
+        two = torch.stack([logits, torch.zeros_like(logits)], -1)  # [N, 2] (keep, drop) logits
+        u = torch.rand(two.shape, generator=self._generator(logits.device), device=logits.device, dtype=logits.dtype)
+        tiny = torch.finfo(logits.dtype).tiny
+        gumbel = -torch.log((-torch.log(u.clamp_min(tiny))).clamp_min(tiny))  # [N, 2] Gumbel(0, 1)
+        soft = torch.softmax((two + gumbel) / self.gumbel_tau, -1)[:, 0]  # [N] relaxed keep
+        hard = (two[:, 0] + gumbel[:, 0] > gumbel[:, 1]).to(logits.dtype).detach()  # [N] argmax == keep
+        return hard + (soft - soft.detach())  # the added term is exactly 0 forward, so values stay in {0, 1}

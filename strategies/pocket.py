@@ -1,0 +1,122 @@
+"""Pocket-SLAM: keep the Gaussians that paint the most of the image, with a budget per 16x16 tile.
+
+After a keyframe's mapping, each candidate Gaussian gets the rendering-area score S_i (Eqs. 5-6,
+see ``strategies._area``) and belongs to the tile holding its projected centre. A tile's budget
+follows how hard tracking pulled on its Gaussians (Eqs. 7-8): tiles whose Gaussians carry large
+tracking gradients hold geometry that tracking relies on, so they keep more; every occupied tile
+keeps at least ``budget_min`` so no region of the view is emptied.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import ClassVar
+
+import torch
+
+from bench.errors import StrategyError
+from bench.slam.raster import TILE_PX
+from bench.strategy import PruneContext, Strategy
+from strategies._area import AREA_MODES, area_score, check, check_choice, is_int
+
+BUDGET_ROUNDINGS: tuple[str, ...] = ("ceil", "floor")
+
+
+def tile_budgets(tile: torch.Tensor, grad: torch.Tensor, candidates: torch.Tensor, n_tiles: int, n_target: int,
+                 budget_min: int, budget_max: int, rounding: str = "ceil") -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-tile budgets B_k [T] and candidate counts n_k [T] (Eqs. 7-8).
+
+    G_k is the mean tracking-gradient norm of tile k's candidates, and
+    B_k = clip(round(N_tar G_k / sum_j G_j), B_min, B_max) over the occupied tiles. When no
+    occupied tile has any gradient (nothing was tracked yet) the target is split evenly, the
+    limit of equal G_k. Unoccupied tiles get budget 0.
+    """
+    idx = candidates.nonzero().flatten()  # [M]
+    t = tile[idx]  # [M]
+    n_k = torch.bincount(t, minlength=n_tiles)  # [T]
+    g_sum = torch.zeros(n_tiles, dtype=torch.float64, device=tile.device)
+    g_sum.index_add_(0, t, grad[idx].detach().to(torch.float64))
+    occupied = n_k > 0  # [T]
+    g_k = torch.where(occupied, g_sum / n_k.clamp_min(1), torch.zeros_like(g_sum))  # [T]
+    total = g_k.sum()
+    if float(total) > 0:
+        raw = n_target * g_k / total  # [T] N_tar * G_k / sum_j G_j, float64 so exact shares stay exact
+    else:
+        raw = n_target * occupied.to(torch.float64) / occupied.sum().clamp_min(1)
+    raw = torch.ceil(raw) if rounding == "ceil" else torch.floor(raw)
+    budget = raw.clamp(budget_min, budget_max).to(torch.long)
+    return torch.where(occupied, budget, torch.zeros_like(budget)), n_k
+
+
+def keep_top_per_tile(score: torch.Tensor, tile: torch.Tensor, candidates: torch.Tensor,
+                      budget: torch.Tensor) -> torch.Tensor:
+    """[N] bool: every non-candidate, plus the ``budget[k]`` best-scoring candidates of each tile k.
+
+    Vectorised as one segmented top-k: sort candidates by score (descending), then stably by
+    tile, so each tile's candidates form a contiguous run in score order; a candidate's rank in
+    its tile is its position minus the run's start, and it survives if rank < B_k. Ties keep
+    the lower index (both sorts are stable).
+    """
+    keep = ~candidates
+    idx = candidates.nonzero().flatten()  # [M]
+    if idx.numel() == 0:
+        return keep
+    t = tile[idx]  # [M]
+    order = torch.sort(score[idx], descending=True, stable=True).indices  # [M]
+    order = order[torch.sort(t[order], stable=True).indices]  # [M] grouped by tile, score-descending within
+    t_sorted = t[order]
+    n_k = torch.bincount(t_sorted, minlength=budget.numel())  # [T]
+    start = torch.cumsum(n_k, 0) - n_k  # [T] first position of each tile's run
+    rank = torch.arange(idx.numel(), device=idx.device) - start[t_sorted]  # [M]
+    keep = keep.clone()
+    keep[idx[order[rank < budget[t_sorted]]]] = True
+    return keep
+
+
+@dataclass
+class PocketPruning(Strategy):
+    """The paper's method: per-tile top-B_k by rendering-area score; new Gaussians are exempt.
+
+    Pruning ratio: the budgets are shares of the shared target N_tar = ctx.n_target, so the
+    number kept is sum_k min(B_k, n_k); rounding up and the B_min floor can make it exceed N_tar.
+    """
+
+    description: ClassVar[str] = "Pocket-SLAM: rendering-area score, per-tile budgets from tracking gradients"
+
+    tile_px: int = 16  # tile side in pixels; must equal the rasterizer's tile (16)
+    budget_min: int = 5  # B_min: every occupied tile keeps at least this many
+    budget_max: int = 200  # B_max: no tile keeps more than this many
+    area: str = "exact"  # C_i: exact | analytic | radius
+    budget_round: str = "ceil"  # B_k rounding: ceil | floor
+
+    def __post_init__(self) -> None:
+        name = "pocket"
+        check(name, self.tile_px == TILE_PX,
+              f"tile_px must equal the rasterizer's tile size {TILE_PX}; got {self.tile_px!r}")
+        check(name, is_int(self.budget_min) and self.budget_min >= 0,
+              f"budget_min must be an integer >= 0; got {self.budget_min!r}")
+        check(name, is_int(self.budget_max) and self.budget_max >= max(self.budget_min, 1),
+              f"budget_max must be an integer >= budget_min ({self.budget_min}) and >= 1; got {self.budget_max!r}")
+        check_choice(name, "area", self.area, AREA_MODES)
+        check_choice(name, "budget_round", self.budget_round, BUDGET_ROUNDINGS)
+
+    def budgets(self, ctx: PruneContext) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B_k [T], n_k [T]) for this keyframe's tile grid."""
+        tiles_x, tiles_y = ctx.raster.tiles_xy
+        h, w = ctx.image_hw
+        if (tiles_x, tiles_y) != (math.ceil(w / self.tile_px), math.ceil(h / self.tile_px)):
+            raise StrategyError(f"raster tile grid {tiles_x}x{tiles_y} does not match a {w}x{h} px image "
+                                f"in {self.tile_px} px tiles")
+        return tile_budgets(ctx.raster.tile_id, ctx.track_grad_mean, self._candidates(ctx), tiles_x * tiles_y,
+                            ctx.n_target, self.budget_min, self.budget_max, self.budget_round)
+
+    def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
+        score = area_score(ctx.raster, ctx.gaussians.opacities, self.area)  # [N] S_i
+        budget, _ = self.budgets(ctx)
+        return keep_top_per_tile(score, ctx.raster.tile_id, self._candidates(ctx), budget) | ctx.is_new
+
+    @staticmethod
+    def _candidates(ctx: PruneContext) -> torch.Tensor:
+        """[N] bool: the core's candidates, and only those with a tile (tile_id -1 is never pruned)."""
+        return ctx.candidates & (ctx.raster.tile_id >= 0)

@@ -1,0 +1,63 @@
+"""LightGaussian (opacity) and LP-3DGS (gradient) scores, accumulated in their own state entries."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from bench.errors import ConfigError
+from bench.strategy import load_strategy
+from strategies.gradient import STATE_GRAD_SUM, GradientPruning
+from strategies.opacity import STATE_SIGNIFICANCE, OpacityPruning, volume_factor
+
+
+def test_volume_factor_is_normalised_by_the_90th_percentile_and_clipped():
+    vol = torch.arange(1.0, 11.0)  # volumes 1..10: V_90 is the 9th smallest, 9
+    log_scales = torch.log(vol)[:, None] * torch.tensor([1.0, 0.0, 0.0])  # prod(exp(log_scales)) = vol
+    got = volume_factor(log_scales, 0.9, 0.1)
+    want = torch.clamp(vol / 9.0, max=1.0) ** 0.1
+    torch.testing.assert_close(got, want)
+    assert got[-2:].eq(1.0).all()
+
+
+def test_opacity_accumulates_opacity_times_hits_over_keyframes(scene):
+    idx = scene.add_grid(0, 0, 10) + scene.add_grid(1, 1, 10, opacity=0.3)
+    strategy = OpacityPruning(use_volume=False)
+    assert STATE_SIGNIFICANCE in strategy.state_spec()
+    ctx = scene.context(scene.gaussian_map(strategy))
+    per_kf = ctx.gaussians.opacities.detach() * ctx.raster.hit_count.float()  # [N]
+    assert (ctx.raster.hit_count[idx] > 0).all()
+    strategy.after_mapping(ctx)
+    keep = strategy.after_mapping(ctx)  # a second keyframe seeing the same view
+    torch.testing.assert_close(ctx.state[STATE_SIGNIFICANCE], 2 * per_kf)
+    best = torch.topk(per_kf, ctx.n_target).indices
+    assert keep[best].all() and int(keep.sum()) == ctx.n_target
+
+
+def test_opacity_volume_factor_protects_larger_splats(scene):
+    same = dict(opacity=0.5)
+    tiny = [scene.add(4.0 + 3 * i, 4.0, sigma_px=0.4, **same) for i in range(4)]
+    large = [scene.add(40.0 + 6 * i, 30.0, sigma_px=2.5, **same) for i in range(4)]
+    ctx = scene.build(OpacityPruning(), keep_ratio=0.5)
+    keep = OpacityPruning().after_mapping(ctx)
+    assert keep[large].all() and not keep[tiny].any()
+
+
+def test_gradient_accumulates_tracking_gradients_and_prunes_the_lowest(scene):
+    idx = scene.add_grid(0, 0, 10)
+    strategy = GradientPruning()
+    ctx = scene.context(scene.gaussian_map(strategy), keep_ratio=0.3)
+    g1 = torch.linspace(0.0, 1.0, 10)
+    g2 = torch.linspace(1.0, 0.0, 10) * 0.5  # the running sum is what counts, not the last step
+    for f, g in enumerate((g1, g2)):
+        strategy.on_tracking_step(scene.tracking_context(ctx, g, f))
+    torch.testing.assert_close(ctx.state[STATE_GRAD_SUM], g1 + g2)
+    keep = strategy.after_mapping(ctx)
+    assert ctx.n_target == 3
+    assert keep[idx].tolist() == [False] * 7 + [True] * 3  # g1 + g2 = 0.5 + 0.5 i / 9, rising
+
+
+@pytest.mark.parametrize("params", [{"volume_power": -1.0}, {"volume_quantile": 0.0}, {"use_volume": "yes"}])
+def test_opacity_rejects_bad_parameters(params):
+    with pytest.raises(ConfigError, match="strategy 'opacity'"):
+        load_strategy("opacity", params)

@@ -1,0 +1,87 @@
+"""Every strategy against the shared pruning ratio on one hand-built scene, and new-Gaussian exemption."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from bench.strategy import PruneContext, Strategy, load_strategy
+
+BUILT_INS = ["none", "pocket", "area", "opacity", "gradient", "mask"]
+
+
+def mixed_scene(scene) -> dict[str, list[int]]:
+    """Candidates in four tiles with varied sizes and gradients, Gaussians off-image, and new ones."""
+    g = torch.Generator().manual_seed(0)
+    groups: dict[str, list[int]] = {}
+    for name, (tx, ty, n, grad) in {"t0": (0, 0, 14, 0.5), "t6": (2, 1, 9, 2.0), "t11": (3, 2, 20, 1.0),
+                                    "t4": (0, 1, 3, 0.1)}.items():
+        groups[name] = scene.add_grid(tx, ty, n, grad=grad,
+                                      sigma_px=float(torch.rand((), generator=g)) * 2 + 0.5)
+    groups["off"] = [scene.add(-4.0, 20.0), scene.add(20.0, 60.0)]
+    groups["new"] = [scene.add(20.0 + i, 20.0, new=True, grad=50.0) for i in range(4)]
+    return groups
+
+
+def prepared(scene, name: str, keep_ratio: float = 0.4) -> tuple[Strategy, PruneContext]:
+    strategy = load_strategy(name)
+    ctx = scene.context(scene.gaussian_map(strategy), keep_ratio)
+    for f in range(3):  # what tracking would have accumulated
+        grad = torch.linspace(0.1, 2.0, len(ctx.gaussians)).roll(7 * f)
+        strategy.on_tracking_step(scene.tracking_context(ctx, grad, f))
+    return strategy, ctx
+
+
+@pytest.mark.parametrize("name", ["area", "opacity", "gradient"])
+@pytest.mark.parametrize("keep_ratio", [0.4, 0.25, 1.0])
+def test_global_strategies_keep_exactly_n_target_candidates(scene, name, keep_ratio):
+    groups = mixed_scene(scene)
+    strategy, ctx = prepared(scene, name, keep_ratio)
+    assert int(ctx.candidates.sum()) == 46
+    keep = strategy.after_mapping(ctx)
+    assert keep.dtype == torch.bool and keep.shape == ctx.candidates.shape
+    assert int((keep & ctx.candidates).sum()) == ctx.n_target == math.ceil(keep_ratio * 46)
+    assert keep[~ctx.candidates].all()
+    assert keep[groups["off"]].all() and keep[groups["new"]].all()
+
+
+@pytest.mark.parametrize("keep_ratio", [0.4, 0.1])
+def test_pocket_keeps_the_sum_of_capped_tile_budgets(scene, budgets, keep_ratio):
+    groups = mixed_scene(scene)
+    strategy, ctx = prepared(scene, "pocket", keep_ratio)
+    grads = {0: [0.5] * 14, 6: [2.0] * 9, 11: [1.0] * 20, 4: [0.1] * 3}
+    n_k = {k: len(v) for k, v in grads.items()}
+    hand = budgets(ctx.n_target, grads)
+    keep = strategy.after_mapping(ctx)
+    assert int((keep & ctx.candidates).sum()) == sum(min(hand[k], n_k[k]) for k in hand)
+    for name, k in (("t0", 0), ("t6", 6), ("t11", 11), ("t4", 4)):
+        assert int(keep[groups[name]].sum()) == min(hand[k], n_k[k]), name
+    assert keep[groups["off"]].all() and keep[groups["new"]].all()
+
+
+def test_none_never_prunes(scene):
+    mixed_scene(scene)
+    strategy, ctx = prepared(scene, "none")
+    assert strategy.after_mapping(ctx) is None
+
+
+def test_mask_ignores_the_keep_ratio(scene):
+    mixed_scene(scene)
+    strategy, ctx = prepared(scene, "mask", keep_ratio=0.1)
+    assert strategy.after_mapping(ctx).all()  # nothing masked yet: nothing deleted, whatever N_tar says
+
+
+@pytest.mark.parametrize("name", BUILT_INS)
+def test_new_gaussians_are_never_in_the_removal_set(scene, name):
+    groups = mixed_scene(scene)
+    strategy, ctx = prepared(scene, name, keep_ratio=0.05)
+    if name == "mask":  # hide the new Gaussians: they must survive anyway
+        with torch.no_grad():
+            ctx.gaussians.params["mask_logits"][groups["new"]] = -5.0
+        strategy = load_strategy("mask", {"masked_keyframes": 1})
+    assert not ctx.candidates[groups["new"]].any()
+    keep = strategy.after_mapping(ctx)
+    if keep is not None:
+        assert keep[groups["new"]].all()

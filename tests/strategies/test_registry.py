@@ -1,0 +1,84 @@
+"""Loading strategies through entry points: built-ins, config files, errors, and a third-party plugin."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+import yaml
+
+from bench import strategy as bench_strategy
+from bench.errors import ConfigError, StrategyError
+from bench.strategy import Strategy, available, load_strategy
+
+BUILT_INS = ["area", "gradient", "mask", "none", "opacity", "pocket"]
+CONF = Path(__file__).resolve().parents[2] / "conf" / "strategy"
+
+
+@pytest.mark.parametrize("name", BUILT_INS)
+def test_each_built_in_loads_through_its_entry_point_as_a_strategy_dataclass(name):
+    assert name in available()
+    s = load_strategy(name)
+    assert isinstance(s, Strategy) and dataclasses.is_dataclass(s)
+    assert type(s).__module__ == f"strategies.{name}"
+    assert type(s).description and "\n" not in type(s).description
+
+
+@pytest.mark.parametrize("name", BUILT_INS)
+def test_config_file_lists_every_field_with_its_default(name):
+    cfg_text = (CONF / f"{name}.yaml").read_text()
+    assert cfg_text.startswith("# @package strategy")
+    cfg = yaml.safe_load(cfg_text)
+    assert cfg["name"] == name
+    cls = type(load_strategy(name))
+    defaults = {f.name: f.default for f in dataclasses.fields(cls)}
+    assert cfg["params"] == defaults
+    assert load_strategy(name, cfg["params"]) == cls()
+
+
+def test_misspelt_name_suggests_the_closest():
+    with pytest.raises(StrategyError) as err:
+        load_strategy("pockt")
+    assert str(err.value) == f"unknown strategy 'pockt'; did you mean 'pocket'? available: {', '.join(available())}"
+
+
+def test_unknown_parameter_is_a_config_error():
+    with pytest.raises(ConfigError, match="strategy 'pocket' has no parameter 'keep_ratio'"):
+        load_strategy("pocket", {"keep_ratio": 0.5})  # the ratio is shared, not a strategy field
+
+
+def test_third_party_plugin_is_found_through_its_entry_point(tmp_path, monkeypatch):
+    (tmp_path / "myplug.py").write_text(textwrap.dedent('''
+        from dataclasses import dataclass
+        from typing import ClassVar
+
+        from bench.strategy import Strategy, top_k_keep
+
+
+        @dataclass
+        class Mine(Strategy):
+            description: ClassVar[str] = "keep the most opaque"
+            threshold: float = 0.5
+
+            def after_mapping(self, ctx):
+                return top_k_keep(ctx.gaussians.opacities, ctx.candidates, ctx.n_target)
+    '''))
+    info = tmp_path / "myplug-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: myplug\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text("[pocketbench.strategies]\nmine = myplug:Mine\n")
+    monkeypatch.syspath_prepend(str(tmp_path))  # also invalidates the import caches
+    monkeypatch.delitem(sys.modules, "myplug", raising=False)
+    importlib.invalidate_caches()
+    try:
+        assert "mine" in available() and "mine" in bench_strategy.available()
+        s = load_strategy("mine", {"threshold": 0.7})
+        assert type(s).__name__ == "Mine" and s.threshold == 0.7 and isinstance(s, Strategy)
+        with pytest.raises(ConfigError):
+            load_strategy("mine", {"thresold": 0.7})
+    finally:
+        sys.modules.pop("myplug", None)

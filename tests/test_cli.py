@@ -1,0 +1,104 @@
+"""The CLI forms, composed through Hydra's compose API, plus real subprocess runs."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+from omegaconf import DictConfig
+
+from bench.cli import CONF_DIR, check_overrides
+from bench.errors import StrategyError
+from bench.run import run
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def compose_cfg(*overrides: str) -> DictConfig:
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        return compose(config_name="config", overrides=list(overrides))
+
+
+def test_default_is_synthetic_without_pruning():
+    cfg = compose_cfg()
+    assert cfg.dataset.name == "synthetic"
+    assert "strategy" not in cfg
+
+
+def test_paper_command_form_parses():
+    cfg = compose_cfg("+strategy=pocket", "dataset=kitti", "seq=10")
+    assert cfg.strategy.name == "pocket"
+    assert cfg.dataset.name == "kitti"
+    assert str(cfg.seq) == "10"
+
+
+@pytest.mark.parametrize("seq", ["00", "05", "10"])
+def test_seq_is_kept_as_written(seq):
+    cfg = compose_cfg("dataset=kitti", f"seq={seq}")
+    from bench.run import run_keys
+
+    assert run_keys(cfg)["seq"].zfill(2) == seq
+
+
+def test_unknown_strategy_is_one_line_with_suggestion():
+    with pytest.raises(StrategyError) as err:
+        check_overrides(["+strategy=pockt"])
+    msg = str(err.value)
+    assert msg.startswith("unknown strategy 'pockt'; did you mean 'pocket'? available: ")
+    assert "\n" not in msg
+    check_overrides(["+strategy=none,pocket,area,opacity,gradient,mask"])  # all known
+
+
+def _run_cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "bench", *args], cwd=cwd, capture_output=True, text=True,
+                          timeout=600)
+
+
+def test_missing_kitti_is_one_line_error(tmp_path):
+    proc = _run_cli(["+strategy=pocket", "dataset=kitti", "seq=10", f"dataset.root={tmp_path}/nokitti",
+                     f"hydra.run.dir={tmp_path}/run"], tmp_path)
+    assert proc.returncode != 0
+    assert "Traceback" not in proc.stderr
+    err_lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("error:")]
+    assert len(err_lines) == 1 and "kitti" in err_lines[0] and "not found" in err_lines[0], proc.stderr
+    stored = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert stored["status"] == "failed"
+
+
+def test_unknown_strategy_cli(tmp_path):
+    proc = _run_cli(["+strategy=pockt"], tmp_path)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [proc.stderr.strip()]
+    assert "did you mean 'pocket'" in proc.stderr
+
+
+@pytest.mark.slow
+def test_subprocess_tiny_run(tmp_path):
+    proc = _run_cli(["+experiment=tiny", "dataset.n_frames=6", "slam.mapping_iters=10", "slam.tracking_iters=10",
+                     f"hydra.run.dir={tmp_path}/run"], tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    stored = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert stored["status"] == "ok"
+    assert (tmp_path / "run" / "keyframes.csv").read_text().count("\n") >= 2
+
+
+@pytest.mark.slow
+def test_end_to_end_tiny_run_is_accurate(tmp_path):
+    """Bounds a broken tracker (ATE) or mapper (PSNR) would fail."""
+    cfg = compose_cfg("+experiment=tiny")
+    res = run(cfg, out_dir=tmp_path)
+    m = res.metrics
+    assert res.status == "ok", res.error
+    assert m["num_frames"] == 12
+    assert m["ate_rmse_m"] < 0.03 * m["path_length_m"], m
+    assert m["psnr_db"] > 22.0, m
+    assert m["gaussians_peak"] > 0 and m["state_peak_mib"] > 0
+    for name in ("metrics.json", "keyframes.csv", "traj_est.txt", "traj_gt.txt", "config.yaml", "memory.png"):
+        assert (tmp_path / name).exists(), name
+    # resume: the same config is skipped, a changed one is not
+    again = run(cfg, out_dir=tmp_path)
+    assert again.skipped and again.metrics == m

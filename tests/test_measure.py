@@ -1,0 +1,156 @@
+"""Memory probe windows, exact tensor bytes, phase timer."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+import torch
+
+import bench.measure as measure
+from bench.errors import ConfigError
+from bench.measure import MemoryProbe, PhaseTimer, tensor_bytes
+
+BIG_MIB = 200
+CPU = torch.device("cpu")
+
+
+def _window(probe: MemoryProbe, alloc_mib: int = 0, hold_s: float = 0.0) -> dict[str, float | None]:
+    """One window; optionally allocate (and write, so it is resident) a tensor and free it inside."""
+    probe.start_window()
+    if alloc_mib:
+        big = torch.ones(alloc_mib * 2**20 // 4)  # [n] float32, pages touched
+        if hold_s:
+            time.sleep(hold_s)
+        del big
+    return probe.end_window()
+
+
+def _check_big_window_rises(probe: MemoryProbe, rss_resets: bool) -> None:
+    empty = _window(probe)
+    big = _window(probe, BIG_MIB, hold_s=0.03)
+    after = _window(probe)
+    assert big["torch_live_peak_mib"] - empty["torch_live_peak_mib"] >= 190
+    assert after["torch_live_peak_mib"] < empty["torch_live_peak_mib"] + 10
+    assert big["cpu_rss_peak_mib"] - empty["cpu_rss_peak_mib"] >= 190
+    if rss_resets:
+        assert after["cpu_rss_peak_mib"] < big["cpu_rss_peak_mib"] - 150
+    assert big["cuda_alloc_peak_mib"] is None and big["cuda_reserved_peak_mib"] is None
+
+
+@pytest.mark.parametrize("method", ["profiler-memory", "dispatch-mode"])
+def test_window_peaks_follow_a_big_allocation(method: str) -> None:
+    with MemoryProbe(CPU, live_method=method) as probe:
+        assert probe.torch_live_method == method
+        _check_big_window_rises(probe, rss_resets=probe.rss_method == "vmhwm+clear_refs")
+
+
+@pytest.mark.parametrize("method", ["profiler-memory", "dispatch-mode"])
+def test_live_bytes_held_across_windows_stay_counted(method: str) -> None:
+    with MemoryProbe(CPU, live_method=method) as probe:
+        base = _window(probe)["torch_live_peak_mib"]
+        probe.start_window()
+        kept = torch.zeros(16 * 2**20 // 4)  # [n] float32, 16 MiB, kept past the window
+        first = probe.end_window()["torch_live_peak_mib"]
+        second = _window(probe)["torch_live_peak_mib"]
+        assert first - base == pytest.approx(16, abs=0.5)
+        assert second - base == pytest.approx(16, abs=0.5)  # still live, so still the floor
+        del kept
+        assert _window(probe)["torch_live_peak_mib"] == pytest.approx(base, abs=0.5)
+
+
+@pytest.mark.parametrize("method", ["profiler-memory", "dispatch-mode"])
+def test_autograd_buffers_are_counted(method: str) -> None:
+    """Backward allocates gradients and frees saved activations: the peak sees them."""
+    w = torch.randn(2**20, requires_grad=True)  # 4 MiB parameter, made before the probe
+    with MemoryProbe(CPU, live_method=method) as probe:
+        probe.start_window()
+        loss = (w.exp() * 2).sin().sum()  # saves ~4 MiB activations per op
+        loss.backward()
+        peak = probe.end_window()["torch_live_peak_mib"]
+    assert 8 <= peak <= 40
+
+
+def test_rss_falls_back_to_sampler(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(measure, "_hwm_reset_works", lambda: False)
+    with MemoryProbe(CPU, torch_live=False) as probe:
+        assert probe.rss_method == "psutil-sampled"
+        empty = _window(probe)
+        big = _window(probe, BIG_MIB, hold_s=0.05)  # held for 10 sampling periods
+        after = _window(probe)
+    assert empty["torch_live_peak_mib"] is None
+    assert big["cpu_rss_peak_mib"] - empty["cpu_rss_peak_mib"] >= 190
+    assert after["cpu_rss_peak_mib"] < big["cpu_rss_peak_mib"] - 150
+
+
+def test_torch_live_off_and_busy_profiler_fallback() -> None:
+    with MemoryProbe(CPU, torch_live=False) as off:
+        assert off.torch_live_method == "off"
+        assert _window(off)["torch_live_peak_mib"] is None
+    first = MemoryProbe(CPU)
+    try:
+        if first.torch_live_method == "profiler-memory":
+            second = MemoryProbe(CPU)  # only one profiler at a time: falls back
+            assert second.torch_live_method == "dispatch-mode"
+            second.close()
+    finally:
+        first.close()
+        first.close()  # idempotent
+
+
+def test_unknown_live_method() -> None:
+    with pytest.raises(ConfigError, match="unknown live_method"):
+        MemoryProbe(CPU, live_method="magic")
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_cuda_peaks() -> None:
+    dev = torch.device("cuda")
+    with MemoryProbe(dev) as probe:
+        assert probe.torch_live_method == "off"
+        empty = _window_cuda(probe, dev, 0)
+        big = _window_cuda(probe, dev, BIG_MIB)
+        after = _window_cuda(probe, dev, 0)
+    assert big["cuda_alloc_peak_mib"] - empty["cuda_alloc_peak_mib"] >= 190
+    assert big["cuda_reserved_peak_mib"] >= big["cuda_alloc_peak_mib"]
+    assert after["cuda_alloc_peak_mib"] < big["cuda_alloc_peak_mib"] - 150
+    assert big["torch_live_peak_mib"] is None
+
+
+def _window_cuda(probe: MemoryProbe, dev: torch.device, mib: int) -> dict[str, float | None]:
+    probe.start_window()
+    if mib:
+        x = torch.ones(mib * 2**20 // 4, device=dev)
+        del x
+    return probe.end_window()
+
+
+def test_tensor_bytes_exact() -> None:
+    ts = [
+        torch.zeros(1000, 3),  # float32
+        torch.zeros(7, dtype=torch.float64),
+        torch.zeros(5, 2, dtype=torch.uint8),
+        torch.zeros(3, dtype=torch.bool),
+        torch.zeros(0, 4),
+    ]
+    assert tensor_bytes(ts) == 1000 * 3 * 4 + 7 * 8 + 10 + 3 + 0
+    assert tensor_bytes(t for t in ts[:1]) == 12_000
+    assert tensor_bytes([]) == 0
+
+
+def test_phase_timer_sums_per_phase() -> None:
+    timer = PhaseTimer(CPU)
+    for _ in range(2):
+        with timer.phase("tracking"):
+            time.sleep(0.02)
+    with timer.phase("mapping"):
+        time.sleep(0.01)
+    with pytest.raises(RuntimeError), timer.phase("mapping"):
+        raise RuntimeError("boom")  # time up to the exception still counts
+    totals = timer.totals()
+    assert list(totals) == ["tracking", "mapping"]
+    assert 0.04 <= totals["tracking"] < 0.5
+    assert 0.01 <= totals["mapping"] < 0.5
+    assert timer.counts() == {"tracking": 2, "mapping": 2}
+    timer.reset()
+    assert timer.totals() == {} and timer.counts() == {}
