@@ -36,7 +36,8 @@ class SlamConfig:
     lambda_depth_track: float = 1.0  # paper
     lambda_depth_map: float = 1.5  # paper
     silhouette_min: float = 0.99  # tracking uses pixels the map explains with confidence
-    depth_loss_max_m: float = 80.0  # far pixels (sky) only constrain colour
+    depth_loss_max_m: float = 30.0  # far pixels (sky, distant road) only constrain colour
+    depth_normalized: bool = False  # compare depth / silhouette (unbiased where coverage < 1)
     mapping_iters: int = 100  # paper: 100 per keyframe
     mapping_window: int = 5  # keyframes optimised together (current one included)
     kf_every: int = 5  # a keyframe at least every N frames
@@ -227,8 +228,13 @@ class System:
         n = mask.sum().clamp_min(1)
         color_l1 = ((out.color - rgb).abs().sum(-1) * mask).sum() / (3 * n)
         dmask = mask & (depth > 0) & (depth < self.cfg.depth_loss_max_m)
-        depth_l1 = ((out.depth - depth).abs() * dmask).sum() / dmask.sum().clamp_min(1)
+        depth_l1 = ((self._depth(out) - depth).abs() * dmask).sum() / dmask.sum().clamp_min(1)
         return color_l1 + self.cfg.lambda_depth_track * depth_l1, color_l1.detach()
+
+    def _depth(self, out: RasterOutput) -> torch.Tensor:
+        if self.cfg.depth_normalized:
+            return out.depth / out.alpha.clamp_min(1e-3)
+        return out.depth
 
     def _gaussian_grad_norm(self) -> torch.Tensor:
         sq = torch.zeros(len(self.map), device=self.device)
@@ -299,7 +305,7 @@ class System:
             out = self.render(kf.w2c, training=True, iteration=it)
             color_l1 = (out.color - kf.rgb).abs().mean()
             dmask = (kf.depth > 0) & (kf.depth < cfg.depth_loss_max_m)
-            depth_l1 = ((out.depth - kf.depth).abs() * dmask).sum() / dmask.sum().clamp_min(1)
+            depth_l1 = ((self._depth(out) - kf.depth).abs() * dmask).sum() / dmask.sum().clamp_min(1)
             loss = color_l1 + cfg.lambda_depth_map * depth_l1
             extra = self.strategy.mapping_loss(MappingContext(kf_idx, it, self.map, self.map.state, True))
             if extra is not None:
