@@ -28,7 +28,7 @@ SKY_RADIUS_M = 120.0
 class Box:
     lo: np.ndarray  # [3] world min corner
     hi: np.ndarray  # [3] world max corner
-    material: int  # 0 facade, 1 vegetation
+    material: int  # 0 facade, 1 vegetation, 2 post
     tint: np.ndarray  # [3] base colour
 
 
@@ -74,6 +74,16 @@ def _scene(seed: int, length_m: float) -> list[Box]:
                 hi = np.array([max(x0, x0 + side * 2), CAMERA_HEIGHT_M, z + depth])
                 boxes.append(Box(lo, hi, 1, tint))
             z += depth + gap
+        # posts and tree trunks near the kerb: strong, non-periodic parallax cues along the drive
+        z = rng.uniform(-5, 5)
+        while z < length_m + 40:
+            x0 = side * rng.uniform(3.8, 4.6)
+            w = rng.uniform(0.25, 0.6)
+            height = rng.uniform(2.5, 6.0)
+            tint = rng.uniform(0.2, 0.9, 3)
+            boxes.append(Box(np.array([x0 - w / 2, CAMERA_HEIGHT_M - height, z]),
+                             np.array([x0 + w / 2, CAMERA_HEIGHT_M, z + w]), 2, tint))
+            z += rng.uniform(3.0, 9.0)
     return boxes
 
 
@@ -123,6 +133,9 @@ class SyntheticSequence(Sequence):
         self.poses = camera_path(n_frames, speed_m_per_frame, sway_m)
         self.boxes = _scene(seed, n_frames * speed_m_per_frame)
         self._lo = np.stack([b.lo for b in self.boxes])  # [B, 3]
+        path = self.poses[:, :3, 3]
+        self._sky_centre = np.array([0.0, CAMERA_HEIGHT_M, 0.5 * (path[0, 2] + path[-1, 2])])
+        self._sky_radius = 0.5 * abs(path[-1, 2] - path[0, 2]) + SKY_RADIUS_M
         self._hi = np.stack([b.hi for b in self.boxes])
         self._cache: dict[int, Frame] = {}
 
@@ -170,7 +183,7 @@ class SyntheticSequence(Sequence):
         with np.errstate(divide="ignore", invalid="ignore"):
             tg = (CAMERA_HEIGHT_M - o[1]) / d[:, 1]
         dn = np.linalg.norm(d, axis=1)
-        hit = (d[:, 1] > 1e-9) & (tg > 0) & (tg * dn < SKY_RADIUS_M)
+        hit = (d[:, 1] > 1e-9) & (tg > 0) & (tg * dn < SKY_RADIUS_M)  # the ground ends at the horizon haze
         t_best[hit] = tg[hit]
         kind[hit] = -2
         # boxes: slab test, [P, B]
@@ -190,13 +203,16 @@ class SyntheticSequence(Sequence):
         t_best[closer] = tb[closer]
         kind[closer] = bi[closer]
         normal_axis[closer] = np.nanargmax(tmin[np.arange(P), bi], axis=1)[closer]
-        # sky dome: sphere around the ray origin's ground point, always hit from inside
+        # sky dome: one static sphere enclosing the whole drive, so the sky is real, consistent geometry
         sky = kind == -1
-        t_best[sky] = SKY_RADIUS_M / dn[sky]
+        oc = o - self._sky_centre
+        b = (d @ oc) / dn**2  # [P]
+        c = (oc @ oc - self._sky_radius**2) / dn**2
+        t_best[sky] = (-b + np.sqrt(b * b - c))[sky]
         p = o + d * t_best[:, None]  # [P, 3] hit points
         col = np.zeros((P, 3))
-        # sky: low-texture vertical gradient with faint clouds
-        elev = np.clip(-d[:, 1] / dn, 0, 1)
+        # sky: low-texture vertical gradient with faint clouds, a function of the hit point only
+        elev = np.clip(-(p[:, 1] - self._sky_centre[1]) / self._sky_radius, 0, 1) ** 0.5
         cloud = value_noise(p[:, 0] / 40, p[:, 2] / 40 + p[:, 1] / 40, self.seed + 7)
         sky_col = (
             np.array([0.55, 0.7, 0.92])[None] * (1 - 0.5 * elev[:, None])
@@ -205,7 +221,8 @@ class SyntheticSequence(Sequence):
         col[sky] = sky_col[sky]
         # road: dark asphalt, gentle noise, dashed centre line and edge lines
         g = kind == -2
-        asphalt = 0.32 + 0.06 * value_noise(p[:, 0] * 1.5, p[:, 2] * 1.5, self.seed + 1)
+        asphalt = (0.27 + 0.12 * value_noise(p[:, 0] * 0.7, p[:, 2] * 0.7, self.seed + 1)
+                   + 0.06 * value_noise(p[:, 0] * 3, p[:, 2] * 3, self.seed + 4))  # patches and wear, no repeats
         lane = ((np.abs(p[:, 0]) < 0.12) & ((p[:, 2] % 6.0) < 3.0)) | (np.abs(np.abs(p[:, 0]) - 3.6) < 0.12)
         road = np.where(lane, 0.9, asphalt)
         side = np.abs(p[:, 0]) > 4.2  # sidewalk, lighter
@@ -220,13 +237,18 @@ class SyntheticSequence(Sequence):
             # face coordinates: the two axes other than the normal
             a = np.where(ax == 0, q[:, 2], q[:, 0])
             b = q[:, 1]
-            if box.material == 0:  # facade: window grid over plaster noise
+            if box.material == 0:  # facade: window grid (per-building spacing) over plaster noise
                 plaster = 0.8 + 0.2 * value_noise(a * 2, b * 2, self.seed + 3 + bidx)
-                wa = (a % 2.5) / 2.5
+                plaster = plaster * (0.8 + 0.4 * value_noise(a / 3, b / 3, self.seed + 11 + bidx))
+                period = 2.0 + (bidx % 5) * 0.35
+                wa = ((a + 0.37 * bidx) % period) / period
                 wb = ((b - CAMERA_HEIGHT_M) % 3.0) / 3.0
                 window = (wa > 0.25) & (wa < 0.75) & (wb > 0.3) & (wb < 0.75) & (b < CAMERA_HEIGHT_M - 1.5)
                 c = box.tint[None] * plaster[:, None]
                 c = np.where(window[:, None], np.array([0.12, 0.16, 0.22])[None] + 0.1 * plaster[:, None] - 0.08, c)
+            elif box.material == 2:  # post: banded paint
+                band = value_noise(b * 1.5, np.full_like(b, float(bidx)), self.seed + 13)
+                c = box.tint[None] * (0.6 + 0.6 * band[:, None])
             else:  # vegetation: dense multi-octave noise
                 n = (
                     0.5 * value_noise(a * 3, b * 3, self.seed + 5)

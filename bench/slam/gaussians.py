@@ -14,7 +14,7 @@ import torch
 # Learning rates per parameter (Adam). Means are scaled by the scene's depth at init.
 DEFAULT_LRS = {
     "means": 1e-2,  # metres per Adam step; outdoor scenes span 3-120 m
-    "log_scales": 5e-3,
+    "log_scales": 1e-3,
     "quats": 1e-3,
     "opacity_logits": 5e-2,
     "colors": 5e-3,

@@ -88,10 +88,16 @@ def rasterize(
     width: int,
     height: int,
     background: torch.Tensor | None = None,
-    near_m: float = 0.05,
+    near_m: float = 0.2,
     stats: bool = False,
+    depth_far_m: float | None = None,
 ) -> RasterOutput:
-    """Render Gaussians (world frame) through camera ``w2c`` [4, 4] with intrinsics ``K`` [3, 3]."""
+    """Render Gaussians (world frame) through camera ``w2c`` [4, 4] with intrinsics ``K`` [3, 3].
+
+    ``depth_far_m``: Gaussians farther than this still paint colour and silhouette but add nothing
+    to the depth image. A near surface leaking 1% transmittance onto a sky Gaussian at 120 m
+    would otherwise shift its rendered depth by 1.2 m and bias depth-supervised tracking.
+    """
     device, dtype = means.device, means.dtype
     N = means.shape[0]
     tiles_x = (width + TILE_PX - 1) // TILE_PX
@@ -110,7 +116,12 @@ def rasterize(
         lam = mid + torch.sqrt(torch.clamp(mid * mid - det, min=0.1))
         radius = torch.ceil(3.0 * torch.sqrt(lam))
         m2 = means2d.detach()
-        front = (z > near_m) & (det > 0)
+        # in front of the near plane and inside the frustum widened by 30% (3DGS's in_frustum and
+        # Jacobian clamp): Gaussians beside or under a moving camera would otherwise smear huge,
+        # mis-projected footprints over the image
+        in_x = (m2[:, 0] - K[0, 2]).abs() < 1.3 * 0.5 * width
+        in_y = (m2[:, 1] - K[1, 2]).abs() < 1.3 * 0.5 * height
+        front = (z > near_m) & (det > 0) & in_x & in_y
         tmin_x = torch.clamp(torch.floor((m2[:, 0] - radius) / TILE_PX), 0, tiles_x)
         tmax_x = torch.clamp(torch.floor((m2[:, 0] + radius) / TILE_PX) + 1, 0, tiles_x)
         tmin_y = torch.clamp(torch.floor((m2[:, 1] - radius) / TILE_PX), 0, tiles_y)
@@ -166,7 +177,8 @@ def rasterize(
     m2_ext = torch.cat([means2d, means2d.new_zeros(1, 2)])
     conic_ext = torch.cat([conic, conic.new_tensor([[1.0, 0.0, 1.0]])])
     log_op_ext = torch.cat([torch.log(opacities.clamp_min(1e-12)), opacities.new_full((1,), -1e4)])
-    feat_ext = torch.cat([torch.cat([colors, z[:, None]], 1), colors.new_zeros(1, 4)])  # [N+1, 4]
+    z_paint = z if depth_far_m is None else torch.where(z < depth_far_m, z, torch.zeros_like(z))
+    feat_ext = torch.cat([torch.cat([colors, z_paint[:, None]], 1), colors.new_zeros(1, 4)])  # [N+1, 4]
     fy_, fx_ = (
         t.reshape(-1).to(dtype)
         for t in torch.meshgrid(

@@ -37,6 +37,7 @@ class SlamConfig:
     lambda_depth_map: float = 1.5  # paper
     silhouette_min: float = 0.99  # tracking uses pixels the map explains with confidence
     depth_loss_max_m: float = 30.0  # far pixels (sky, distant road) only constrain colour
+    depth_far_m: float | None = 60.0  # Gaussians beyond this add no depth (see rasterize); None = all do
     depth_normalized: bool = False  # compare depth / silhouette (unbiased where coverage < 1)
     mapping_iters: int = 100  # paper: 100 per keyframe
     mapping_window: int = 5  # keyframes optimised together (current one included)
@@ -46,6 +47,7 @@ class SlamConfig:
     densify_stride: int = 2  # new Gaussians from every N-th pixel in each direction
     densify_silhouette: float = 0.5  # add where the rendered silhouette is below this
     densify_depth_err_mult: float = 50.0  # ... or where depth error > mult x median error (SplaTAM)
+    densify_color_err: float = 0.15  # ... or where mean-RGB L1 error exceeds this (detail seen closer); <= 0 off
     init_opacity: float = 0.95  # opaque seeds: tracking needs a confident silhouette early
     max_depth_m: float = 150.0  # observed depth beyond this is ignored
     lrs: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_LRS))
@@ -114,7 +116,8 @@ class System:
         mask = self.strategy.render_mask(MappingContext(len(self.keyframes), iteration, g, g.state, training))
         if mask is not None:
             op = op * mask
-        return rasterize(g.means, g.log_scales, g.quats, op, g.colors, w2c, self.K, self.W, self.H, stats=stats)
+        return rasterize(g.means, g.log_scales, g.quats, op, g.colors, w2c, self.K, self.W, self.H, stats=stats,
+                         depth_far_m=self.cfg.depth_far_m)
 
     def _phase(self, name: str):
         import contextlib
@@ -165,13 +168,17 @@ class System:
         return trans > self.cfg.kf_min_trans_m or rot_deg > self.cfg.kf_min_rot_deg
 
     # ------------------------------------------------------------------ tracking
-    def _track(self, frame_index: int, rgb: torch.Tensor, depth: torch.Tensor) -> tuple[torch.Tensor, float]:
-        cfg = self.cfg
+    def initial_pose(self) -> torch.Tensor:
+        """Constant-velocity guess for the next frame's world-to-camera pose."""
         prev = self.poses[-1]
         if len(self.poses) >= 2:
-            init = (prev @ inverse(self.poses[-2])) @ prev  # constant velocity
-        else:
-            init = prev.clone()
+            return (prev @ inverse(self.poses[-2])) @ prev
+        return prev.clone()
+
+    def _track(self, frame_index: int, rgb: torch.Tensor, depth: torch.Tensor,
+               init: torch.Tensor | None = None) -> tuple[torch.Tensor, float]:
+        cfg = self.cfg
+        init = self.initial_pose() if init is None else init
         xi = torch.zeros(6, device=self.device, requires_grad=True)
         opt = torch.optim.Adam([{"params": [xi], "lr": 1.0}])
         gamma = cfg.tracking_lr_final ** (1.0 / max(1, cfg.tracking_iters - 1))
@@ -262,6 +269,8 @@ class System:
             need = (out.alpha < cfg.densify_silhouette) | (
                 (err > cfg.densify_depth_err_mult * med) & (out.depth > depth)
             )
+            if cfg.densify_color_err > 0:
+                need |= (out.color - rgb).abs().mean(-1) > cfg.densify_color_err
         else:
             need = torch.ones_like(valid)
         s = cfg.densify_stride
