@@ -40,12 +40,13 @@ class SlamConfig:
     depth_far_m: float | None = 60.0  # Gaussians beyond this add no depth (see rasterize); None = all do
     depth_normalized: bool = False  # compare depth / silhouette (unbiased where coverage < 1)
     mapping_iters: int = 100  # paper: 100 per keyframe
+    mapping_fresh_optimizer: bool = True  # new Adam moments per keyframe, as SplaTAM does
     mapping_window: int = 5  # keyframes optimised together (current one included)
     kf_every: int = 5  # a keyframe at least every N frames
     kf_min_trans_m: float = 2.0  # ... or once the camera moved this far since the last one
     kf_min_rot_deg: float = 15.0  # ... or turned this much
     densify_stride: int = 2  # new Gaussians from every N-th pixel in each direction
-    densify_silhouette: float = 0.5  # add where the rendered silhouette is below this
+    densify_silhouette: float = 0.95  # add where the rendered silhouette is below this
     densify_depth_err_mult: float = 50.0  # ... or where depth error > mult x median error (SplaTAM)
     densify_color_err: float = 0.15  # ... or where mean-RGB L1 error exceeds this (detail seen closer); <= 0 off
     init_opacity: float = 0.95  # opaque seeds: tracking needs a confident silhouette early
@@ -302,13 +303,14 @@ class System:
 
     def _map(self, kf_idx: int) -> None:
         cfg = self.cfg
-        window = [self.keyframes[-1]]
-        older = self.keyframes[:-1]
-        if older:
-            window += self._rng.sample(older, min(len(older), cfg.mapping_window - 1))
+        # the most recent keyframes: in forward motion older ones saw this area from far away, at a
+        # fraction of the resolution, and would pull nearby Gaussians towards a blurrier fit
+        window = self.keyframes[::-1][: max(1, cfg.mapping_window)]
         for p in self.map.params.values():
             p.requires_grad_(True)
         opt = self.map.optimizer
+        if cfg.mapping_fresh_optimizer:
+            opt.state.clear()
         for it in range(cfg.mapping_iters):
             kf = window[0] if it % 2 == 0 or len(window) == 1 else self._rng.choice(window[1:])
             out = self.render(kf.w2c, training=True, iteration=it)
