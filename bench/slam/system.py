@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import torch
 
 from bench.datasets.base import Frame
-from bench.errors import TrackingLost
+from bench.errors import ConfigError, TrackingLost
 from bench.slam.gaussians import DEFAULT_LRS, GaussianMap
 from bench.slam.raster import RasterOutput, rasterize
 from bench.slam.se3 import inverse, se3_exp, so3_log
@@ -56,6 +56,12 @@ class SlamConfig:
     lost_patience: int = 3  # ... for this many consecutive frames
     lost_min_silhouette_frac: float = 0.05  # fewer confidently mapped pixels than this = collapsed
     seed: int = 0
+
+
+    def __post_init__(self) -> None:
+        for name in ("tracking_iters", "mapping_iters", "mapping_window", "kf_every", "densify_stride"):
+            if getattr(self, name) < 1 and not (name == "mapping_iters" and self.mapping_iters == 0):
+                raise ConfigError(f"slam.{name} must be >= 1, got {getattr(self, name)}")
 
 
 @dataclass

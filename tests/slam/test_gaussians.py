@@ -8,20 +8,30 @@ from bench.slam.gaussians import GaussianMap, ParamSpec
 
 
 def make_map(n: int = 6) -> GaussianMap:
-    g = GaussianMap(torch.device("cpu"), extra={"mask_logits": ParamSpec(init=2.0, lr=0.1)},
-                    state_dtypes={"score": torch.float32})
+    g = GaussianMap(
+        torch.device("cpu"), extra={"mask_logits": ParamSpec(init=2.0, lr=0.1)}, state_dtypes={"score": torch.float32}
+    )
     ar = torch.arange(n, dtype=torch.float32)
-    g.add({"means": ar[:, None].repeat(1, 3), "log_scales": ar[:, None].repeat(1, 3),
-           "quats": torch.tensor([1.0, 0, 0, 0]).repeat(n, 1), "opacity_logits": ar, "colors": ar[:, None].repeat(1, 3)},
-          keyframe=0)
+    g.add(
+        {
+            "means": ar[:, None].repeat(1, 3),
+            "log_scales": ar[:, None].repeat(1, 3),
+            "quats": torch.tensor([1.0, 0, 0, 0]).repeat(n, 1),
+            "opacity_logits": ar,
+            "colors": ar[:, None].repeat(1, 3),
+        },
+        keyframe=0,
+    )
     g.state["score"] += ar
     return g
 
 
 def step(g: GaussianMap) -> None:
     g.optimizer.zero_grad()
-    loss = sum((p * torch.arange(len(g), dtype=torch.float32).reshape(-1, *[1] * (p.dim() - 1))).sum()
-               for p in g.params.values())
+    loss = sum(
+        (p * torch.arange(len(g), dtype=torch.float32).reshape(-1, *[1] * (p.dim() - 1))).sum()
+        for p in g.params.values()
+    )
     loss.backward()
     g.optimizer.step()
 
@@ -47,8 +57,16 @@ def test_remove_slices_params_moments_and_state_together():
 def test_add_pads_moments_and_state_with_zeros_and_extras_with_init():
     g = make_map(3)
     step(g)
-    g.add({"means": torch.zeros(2, 3), "log_scales": torch.zeros(2, 3), "quats": torch.zeros(2, 4),
-           "opacity_logits": torch.zeros(2), "colors": torch.zeros(2, 3)}, keyframe=4)
+    g.add(
+        {
+            "means": torch.zeros(2, 3),
+            "log_scales": torch.zeros(2, 3),
+            "quats": torch.zeros(2, 4),
+            "opacity_logits": torch.zeros(2),
+            "colors": torch.zeros(2, 3),
+        },
+        keyframe=4,
+    )
     assert len(g) == 5
     assert g.birth_kf.tolist() == [0, 0, 0, 4, 4]
     torch.testing.assert_close(g.params["mask_logits"].detach()[3:], torch.full((2,), 2.0))
