@@ -101,6 +101,16 @@ def test_end_to_end_tiny_run_is_accurate(tmp_path):
     assert m["gaussians_peak"] > 0 and m["state_peak_mib"] > 0
     for name in ("metrics.json", "keyframes.csv", "traj_est.txt", "traj_gt.txt", "config.yaml", "memory.png"):
         assert (tmp_path / name).exists(), name
+    # per-window rows move with the Gaussian count: more Gaussians, more exact state bytes
+    import csv
+
+    rows = list(csv.DictReader((tmp_path / "keyframes.csv").open()))
+    assert len(rows) == m["num_keyframes"] >= 2
+    counts = [int(r["n_gaussians"]) for r in rows]
+    state = [int(r["state_bytes"]) for r in rows]
+    assert counts[-1] > counts[0] and state[-1] > state[0]
+    assert all((c2 > c1) == (s2 > s1) for c1, c2, s1, s2 in zip(counts, counts[1:], state, state[1:], strict=False))
+    assert all(float(r["torch_live_peak_mib"]) > 0 and float(r["cpu_rss_peak_mib"]) > 0 for r in rows)
     # resume: the same config is skipped, a changed one is not
     again = run(cfg, out_dir=tmp_path)
     assert again.skipped and again.metrics == m
