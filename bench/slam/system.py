@@ -9,8 +9,10 @@ over a window of keyframes, and the strategy's keep mask goes through ``Gaussian
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import random
+import time
 from dataclasses import dataclass, field
 
 import torch
@@ -57,11 +59,11 @@ class SlamConfig:
     lost_min_silhouette_frac: float = 0.05  # fewer confidently mapped pixels than this = collapsed
     seed: int = 0
 
-
     def __post_init__(self) -> None:
-        for name in ("tracking_iters", "mapping_iters", "mapping_window", "kf_every", "densify_stride"):
-            if getattr(self, name) < 1 and not (name == "mapping_iters" and self.mapping_iters == 0):
-                raise ConfigError(f"slam.{name} must be >= 1, got {getattr(self, name)}")
+        minimum = {"tracking_iters": 1, "mapping_iters": 0, "mapping_window": 1, "kf_every": 1, "densify_stride": 1}
+        for name, least in minimum.items():
+            if getattr(self, name) < least:
+                raise ConfigError(f"slam.{name} must be >= {least}, got {getattr(self, name)}")
 
 
 @dataclass
@@ -127,8 +129,6 @@ class System:
                          depth_far_m=self.cfg.depth_far_m)
 
     def _phase(self, name: str):
-        import contextlib
-
         return self._timer.phase(name) if self._timer is not None else contextlib.nullcontext()
 
     # ------------------------------------------------------------------ per frame
@@ -136,8 +136,6 @@ class System:
         rgb = frame.rgb.to(self.device)
         depth = frame.depth_m.to(self.device)
         depth = torch.where((depth > 0) & (depth < self.cfg.max_depth_m), depth, torch.zeros_like(depth))
-        import time
-
         t0 = time.perf_counter()
         if not self.poses:
             w2c = torch.eye(4, device=self.device)
@@ -234,16 +232,18 @@ class System:
             )
         return w2c, loss_val
 
-    def _tracking_loss(self, out: RasterOutput, rgb: torch.Tensor, depth: torch.Tensor,
-                       mask: torch.Tensor | None = None):
-        """L1 colour + lambda_d L1 depth, averaged over ``mask`` [H, W] (default: confident silhouette)."""
-        if mask is None:
-            mask = out.alpha.detach() > self.cfg.silhouette_min
+    def _tracking_loss(self, out: RasterOutput, rgb: torch.Tensor, depth: torch.Tensor, mask: torch.Tensor):
+        """L1 colour + lambda_d L1 depth, averaged over ``mask`` [H, W]."""
         n = mask.sum().clamp_min(1)
         color_l1 = ((out.color - rgb).abs().sum(-1) * mask).sum() / (3 * n)
-        dmask = mask & (depth > 0) & (depth < self.cfg.depth_loss_max_m)
-        depth_l1 = ((self._depth(out) - depth).abs() * dmask).sum() / dmask.sum().clamp_min(1)
-        return color_l1 + self.cfg.lambda_depth_track * depth_l1, color_l1.detach()
+        return color_l1 + self.cfg.lambda_depth_track * self._depth_l1(out, depth, mask), color_l1.detach()
+
+    def _depth_l1(self, out: RasterOutput, depth: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        """Mean L1 depth error over valid pixels nearer than ``depth_loss_max_m`` (within ``mask``)."""
+        dmask = (depth > 0) & (depth < self.cfg.depth_loss_max_m)
+        if mask is not None:
+            dmask &= mask
+        return ((self._depth(out) - depth).abs() * dmask).sum() / dmask.sum().clamp_min(1)
 
     def _depth(self, out: RasterOutput) -> torch.Tensor:
         if self.cfg.depth_normalized:
@@ -321,9 +321,7 @@ class System:
             kf = window[0] if it % 2 == 0 or len(window) == 1 else self._rng.choice(window[1:])
             out = self.render(kf.w2c, training=True, iteration=it)
             color_l1 = (out.color - kf.rgb).abs().mean()
-            dmask = (kf.depth > 0) & (kf.depth < cfg.depth_loss_max_m)
-            depth_l1 = ((self._depth(out) - kf.depth).abs() * dmask).sum() / dmask.sum().clamp_min(1)
-            loss = color_l1 + cfg.lambda_depth_map * depth_l1
+            loss = color_l1 + cfg.lambda_depth_map * self._depth_l1(out, kf.depth)
             extra = self.strategy.mapping_loss(MappingContext(kf_idx, it, self.map, self.map.state, True))
             if extra is not None:
                 loss = loss + extra
