@@ -49,7 +49,7 @@ def _hydra_main(cfg: DictConfig) -> None:
     hc = HydraConfig.get()
     multirun = hc.mode == RunMode.MULTIRUN
     try:
-        result = run(cfg, out_dir=hc.runtime.output_dir)
+        result = run(cfg, out_dir=cfg.get("out_dir") or hc.runtime.output_dir)
     except BenchError as exc:  # a config error before the run dir exists
         print(f"error: {exc}", file=sys.stderr)
         if multirun:

@@ -78,12 +78,14 @@ def test_unknown_strategy_cli(tmp_path):
 
 @pytest.mark.slow
 def test_subprocess_tiny_run(tmp_path):
+    # out_dir= takes precedence over Hydra's run dir (which then holds only Hydra's own files)
     proc = _run_cli(["+experiment=tiny", "dataset.n_frames=6", "slam.mapping_iters=10", "slam.tracking_iters=10",
-                     f"hydra.run.dir={tmp_path}/run"], tmp_path)
+                     f"hydra.run.dir={tmp_path}/hydra", f"out_dir={tmp_path}/run"], tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     stored = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert stored["status"] == "ok"
     assert (tmp_path / "run" / "keyframes.csv").read_text().count("\n") >= 2
+    assert not (tmp_path / "hydra" / "metrics.json").exists()
 
 
 @pytest.mark.slow
