@@ -38,11 +38,6 @@ class SlamConfig:
     tracking_lr_trans: float = 5e-2  # Adam step on the twist's translation part (m), decayed ...
     tracking_lr_rot: float = 4e-3  # ... and rotation part (rad)
     tracking_lr_final: float = 0.1  # ... exponentially to this fraction over the iterations
-    # weight per m^2 of translation away from the constant-velocity guess. Forward motion in a
-    # street is weakly observed (road and facades are parallel to it), so tracking's loss has a
-    # flat valley along the optical axis; without a prior the pose slides along it and the
-    # velocity model feeds the slide into the next frame. 0 = off (plain photometric tracking)
-    tracking_motion_prior: float = 0.0
     lambda_depth_track: float = 1.0  # paper
     lambda_depth_map: float = 1.5  # paper
     silhouette_min: float = 0.99  # tracking uses pixels the map explains with confidence
@@ -220,9 +215,6 @@ class System:
             if mask is None or cfg.tracking_mask == "current":
                 mask = out.alpha.detach() > cfg.silhouette_min
             loss, color_l1 = self._tracking_loss(out, rgb, depth, mask)
-            if cfg.tracking_motion_prior > 0:
-                step = xi * scale  # [6] translation m, rotation rad; a rotation counts at a 10 m lever arm
-                loss = loss + cfg.tracking_motion_prior * (step[:3].pow(2).sum() + 100.0 * step[3:].pow(2).sum())
             if not loss.requires_grad:  # no Gaussian projects into the image: nothing to track against
                 raise TrackingLost(f"tracking lost at frame {frame_index}: no Gaussian of the map is in view")
             opt.zero_grad(set_to_none=True)
