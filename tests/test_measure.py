@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import mmap
 import time
 
 import pytest
@@ -71,12 +72,23 @@ def test_autograd_buffers_are_counted(method: str) -> None:
     assert 8 <= peak <= 40
 
 
+def _mmap_window(probe: MemoryProbe, alloc_mib: int, hold_s: float) -> dict[str, float | None]:
+    """A window holding fresh anonymous pages: unlike a malloc'd tensor, they cannot reuse memory an
+    earlier test freed but the allocator kept resident (seen in CI: a 200 MiB tensor moved RSS by 0)."""
+    probe.start_window()
+    blob = mmap.mmap(-1, alloc_mib * 2**20)
+    blob.write(b"\x01" * len(blob))  # touched, so resident
+    time.sleep(hold_s)
+    blob.close()  # munmap: RSS drops at once
+    return probe.end_window()
+
+
 def test_rss_falls_back_to_sampler(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(measure, "_hwm_reset_works", lambda: False)
     with MemoryProbe(CPU, torch_live=False) as probe:
         assert probe.rss_method == "psutil-sampled"
         empty = _window(probe)
-        big = _window(probe, BIG_MIB, hold_s=0.05)  # held for 10 sampling periods
+        big = _mmap_window(probe, BIG_MIB, hold_s=0.05)  # held for 10 sampling periods
         after = _window(probe)
     assert empty["torch_live_peak_mib"] is None
     assert big["cpu_rss_peak_mib"] - empty["cpu_rss_peak_mib"] >= 190
