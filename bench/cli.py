@@ -60,7 +60,7 @@ def _hydra_main(cfg: DictConfig) -> None:
     summary = ", ".join(
         f"{k}={m.get(k)}" for k in ("ate_rmse_m", "psnr_db", "ssim", "fps", "gaussians_peak", "peak_mem_mib") if k in m
     )
-    print(f"[{word}] {result.out_dir}: {summary}")
+    print(f"[{word}] {result.out_dir}" + (f": {summary}" if summary else ""))
     if result.error:
         print(f"error: {result.error}", file=sys.stderr)
         if result.status == "failed" and not multirun:

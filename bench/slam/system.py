@@ -1,6 +1,7 @@
 """Tracking and keyframe mapping: a SplaTAM-style RGB-D 3DGS-SLAM loop with a pruning hook.
 
-Per frame: the pose is initialised at constant velocity and refined on SE(3) by Adam on a
+Per frame: the pose is initialised at constant velocity (refined by sparse flow + PnP on the
+previous frame's depth by default, see ``frontend.py``) and refined on SE(3) by Adam on a
 twist increment, against L1 colour + lambda_d L1 depth on confidently mapped pixels; the last
 tracking iteration also yields the per-Gaussian gradient norm g_i that pruning strategies use.
 On a keyframe: Gaussians are added where the map is missing or wrong, the map is optimised
@@ -15,10 +16,12 @@ import random
 import time
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 
 from bench.datasets.base import Frame
 from bench.errors import ConfigError, TrackingLost
+from bench.slam.frontend import FlowPnpConfig, relative_motion, to_gray_u8
 from bench.slam.gaussians import DEFAULT_LRS, GaussianMap
 from bench.slam.raster import RasterOutput, rasterize
 from bench.slam.se3 import inverse, se3_exp, so3_log
@@ -45,6 +48,13 @@ class SlamConfig:
     # "init" fixes them at the initial pose. A fixed mask left frame-1 tracking 0.08 m short of
     # the true 0.5 m motion (the constant-velocity guess is the identity there), "current" 0.02 m.
     tracking_mask: str = "current"
+    # where tracking starts: "velocity" extrapolates the last motion; "flow_pnp" (default) refines
+    # that prediction with corners tracked since the previous frame and PnP on its depth
+    # (bench/slam/frontend.py), falling back to "velocity" when too few corners survive.
+    # Measured on 40 synthetic frames: "velocity" is lost at frame 16-22, "flow_pnp" ends ok at
+    # ATE 0.032 m over 19.6 m.
+    tracking_init: str = "flow_pnp"
+    flow_pnp: dict[str, float] = field(default_factory=dict)  # FlowPnpConfig overrides
     depth_loss_max_m: float = 30.0  # far pixels (sky, distant road) only constrain colour
     depth_far_m: float | None = 60.0  # Gaussians beyond this add no depth (see rasterize); None = all do
     depth_normalized: bool = False  # compare depth / silhouette (unbiased where coverage < 1)
@@ -52,7 +62,7 @@ class SlamConfig:
     mapping_fresh_optimizer: bool = True  # new Adam moments per keyframe, as SplaTAM does
     mapping_window: int = 5  # keyframes optimised together (current one included)
     kf_every: int = 5  # a keyframe at least every N frames
-    kf_min_trans_m: float = 2.0  # ... or once the camera moved this far since the last one
+    kf_min_trans_m: float = 3.0  # ... or once the camera moved this far since the last one
     kf_min_rot_deg: float = 15.0  # ... or turned this much
     densify_stride: int = 2  # new Gaussians from every N-th pixel in each direction
     densify_silhouette: float = 0.95  # add where the rendered silhouette is below this
@@ -60,7 +70,7 @@ class SlamConfig:
     densify_color_err: float = 0.15  # ... or where mean-RGB L1 error exceeds this (detail seen closer); <= 0 off
     init_opacity: float = 0.95  # opaque seeds: tracking needs a confident silhouette early
     max_depth_m: float = 150.0  # observed depth beyond this is ignored
-    lrs: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_LRS))
+    lrs: dict[str, float] = field(default_factory=dict)  # overrides of bench/slam/gaussians.py:DEFAULT_LRS
     lost_residual: float = 0.25  # mean colour L1 on tracked pixels that counts as failure ...
     lost_patience: int = 3  # ... for this many consecutive frames
     lost_min_silhouette_frac: float = 0.05  # fewer confidently mapped pixels than this = collapsed
@@ -74,6 +84,20 @@ class SlamConfig:
                 raise ConfigError(f"slam.{name} must be >= {least}, got {getattr(self, name)}")
         if self.tracking_mask not in ("current", "init"):
             raise ConfigError(f"slam.tracking_mask must be 'current' or 'init', got '{self.tracking_mask}'")
+        if self.tracking_init not in ("velocity", "flow_pnp"):
+            raise ConfigError(f"slam.tracking_init must be 'velocity' or 'flow_pnp', got '{self.tracking_init}'")
+        bad_lrs = sorted(set(self.lrs) - set(DEFAULT_LRS))
+        if bad_lrs:
+            raise ConfigError(
+                f"slam.lrs has no parameter {', '.join(bad_lrs)}; expected one of: {', '.join(DEFAULT_LRS)}"
+            )
+        self.lrs = {**DEFAULT_LRS, **self.lrs}
+        known = set(FlowPnpConfig.__dataclass_fields__)
+        unknown = sorted(set(self.flow_pnp) - known)
+        if unknown:
+            raise ConfigError(
+                f"slam.flow_pnp has no setting {', '.join(unknown)}; expected one of: {', '.join(sorted(known))}"
+            )
 
 
 @dataclass
@@ -125,6 +149,10 @@ class System:
         self._timer = timer
         ys, xs = torch.meshgrid(torch.arange(height, device=device), torch.arange(width, device=device), indexing="ij")
         self._pix = torch.stack([xs, ys], -1).float()  # [H, W, 2]
+        self._flow_cfg = FlowPnpConfig(**cfg.flow_pnp)
+        self._gray: np.ndarray | None = None  # [H, W] uint8 of the frame being processed (flow_pnp)
+        self._prev_obs: tuple | None = None  # (gray [H, W] uint8, depth [H, W] float) of the last frame
+        self.init_source: list[str] = []  # per tracked frame: "flow_pnp" or "velocity"
 
     # ------------------------------------------------------------------ rendering
     def render(
@@ -147,6 +175,7 @@ class System:
         depth = frame.depth_m.to(self.device)
         depth = torch.where((depth > 0) & (depth < self.cfg.max_depth_m), depth, torch.zeros_like(depth))
         t0 = time.perf_counter()
+        self._gray = to_gray_u8(rgb) if self.cfg.tracking_init == "flow_pnp" else None  # [H, W] uint8
         if not self.poses:
             w2c = torch.eye(4, device=self.device)
             loss = 0.0
@@ -154,6 +183,8 @@ class System:
             with self._phase("tracking"):
                 w2c, loss = self._track(frame.index, rgb, depth)
         t1 = time.perf_counter()
+        if self.cfg.tracking_init == "flow_pnp":
+            self._prev_obs = (self._gray, depth.cpu().numpy())
         self.poses.append(w2c)
         self.frames_since_kf += 1
         result = FrameResult(w2c=w2c, is_keyframe=False, track_loss=loss, track_s=t1 - t0)
@@ -184,11 +215,23 @@ class System:
 
     # ------------------------------------------------------------------ tracking
     def initial_pose(self) -> torch.Tensor:
-        """Constant-velocity guess for the next frame's world-to-camera pose."""
+        """Guess for the next frame's world-to-camera pose [4, 4].
+
+        The constant-velocity prediction, refined by sparse flow + PnP when ``tracking_init`` is
+        ``flow_pnp`` and enough corners survive (see ``bench/slam/frontend.py`` for why).
+        """
         prev = self.poses[-1]
-        if len(self.poses) >= 2:
-            return (prev @ inverse(self.poses[-2])) @ prev
-        return prev.clone()
+        velocity = prev @ inverse(self.poses[-2]) if len(self.poses) >= 2 else torch.eye(4, device=prev.device)
+        if self._gray is not None:
+            if self._prev_obs is not None:
+                K = self.K.double().cpu().numpy()
+                prior = velocity.double().cpu().numpy()
+                rel, _ = relative_motion(self._prev_obs[0], self._gray, self._prev_obs[1], K, self._flow_cfg, prior)
+                if rel is not None:
+                    self.init_source.append("flow_pnp")
+                    return torch.as_tensor(rel, dtype=prev.dtype, device=prev.device) @ prev
+            self.init_source.append("velocity")
+        return velocity @ prev
 
     def _track(self, frame_index: int, rgb: torch.Tensor, depth: torch.Tensor,
                init: torch.Tensor | None = None) -> tuple[torch.Tensor, float]:
