@@ -36,6 +36,20 @@ def test_paper_command_form_parses():
     assert str(cfg.seq) == "10"
 
 
+@pytest.mark.parametrize(("overrides", "refine_iters", "tracking_iters"), [
+    ((), 200, 20),                                         # synthetic: specialised on
+    (("dataset=kitti",), 0, 20),                           # real data: off
+    (("dataset=euroc", "slam=paper"), 0, 50),              # survives another slam choice
+    (("slam=paper",), 200, 50),
+    (("dataset=kitti", "slam.refine_iters=7"), 7, 20),     # the command line wins
+    (("slam.refine_iters=0",), 0, 20),
+])
+def test_final_refinement_is_specialised_per_dataset(overrides, refine_iters, tracking_iters):
+    cfg = compose_cfg(*overrides)
+    assert cfg.slam.refine_iters == refine_iters
+    assert cfg.slam.tracking_iters == tracking_iters
+
+
 @pytest.mark.parametrize("seq", ["00", "05", "10"])
 def test_seq_is_kept_as_written(seq):
     cfg = compose_cfg("dataset=kitti", f"seq={seq}")

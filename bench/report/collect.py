@@ -26,7 +26,7 @@ DEFAULT_SEQ = "default"  # the harness writes seq null when a dataset ran its de
 # Known metrics in the harness's order; unknown numeric metrics are kept and appended.
 METRIC_KEYS: tuple[str, ...] = (
     "ate_rmse_m", "ate_alignment", "ate_num_poses", "psnr_db", "ssim", "lpips", "eval_frames",
-    "fps", "slam_wall_s", "num_frames", "num_keyframes", "gaussians_final", "gaussians_peak",
+    "fps", "slam_wall_s", "refine_s", "num_frames", "num_keyframes", "gaussians_final", "gaussians_peak",
     "state_peak_mib", "cpu_rss_peak_mib", "torch_live_peak_mib", "cuda_alloc_peak_mib",
     "cuda_reserved_peak_mib", "peak_mem_mib",
 )  # fmt: skip

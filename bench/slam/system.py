@@ -60,7 +60,14 @@ class SlamConfig:
     depth_normalized: bool = False  # compare depth / silhouette (unbiased where coverage < 1)
     mapping_iters: int = 100  # paper: 100 per keyframe
     mapping_fresh_optimizer: bool = True  # new Adam moments per keyframe, as SplaTAM does
-    mapping_window: int = 5  # keyframes optimised together (current one included)
+    # keyframes optimised together (current one included); None = all. Half the iterations go to the
+    # current keyframe, the rest to a random other one of the window. Measured on 40 synthetic frames
+    # (PSNR of every frame from the final map): window 5 -> 23.4 dB, all -> 24.5 dB; with 5, views of
+    # the early drive fall from 26 dB when mapped to 22 dB, overwritten by later close-ups.
+    mapping_window: int | None = None
+    # iterations over all keyframes once the drive is over (System.refine), timed apart from the
+    # SLAM loop and not in fps; 0 = evaluate the map exactly as mapping left it
+    refine_iters: int = 0
     kf_every: int = 5  # a keyframe at least every N frames
     kf_min_trans_m: float = 3.0  # ... or once the camera moved this far since the last one
     kf_min_rot_deg: float = 15.0  # ... or turned this much
@@ -78,9 +85,9 @@ class SlamConfig:
 
     def __post_init__(self) -> None:
         minimum = {"tracking_iters": 1, "tracking_iters_first": 1, "mapping_iters": 0, "mapping_window": 1,
-                   "kf_every": 1, "densify_stride": 1}
+                   "refine_iters": 0, "kf_every": 1, "densify_stride": 1}
         for name, least in minimum.items():
-            if getattr(self, name) < least:
+            if getattr(self, name) is not None and getattr(self, name) < least:
                 raise ConfigError(f"slam.{name} must be >= {least}, got {getattr(self, name)}")
         if self.tracking_mask not in ("current", "init"):
             raise ConfigError(f"slam.tracking_mask must be 'current' or 'init', got '{self.tracking_mask}'")
@@ -365,16 +372,36 @@ class System:
 
     def _map(self, kf_idx: int) -> None:
         cfg = self.cfg
-        # the most recent keyframes: in forward motion older ones saw this area from far away, at a
-        # fraction of the resolution, and would pull nearby Gaussians towards a blurrier fit
-        window = self.keyframes[::-1][: max(1, cfg.mapping_window)]
+        # the newest keyframes first; older ones keep the views of the early drive from being
+        # overwritten by later close-ups (see mapping_window)
+        window = self.keyframes[::-1][: cfg.mapping_window or len(self.keyframes)]
+
+        def pick(it: int) -> _Keyframe:
+            return window[0] if it % 2 == 0 or len(window) == 1 else self._rng.choice(window[1:])
+
+        self._optimize(kf_idx, cfg.mapping_iters, pick)
+
+    def refine(self, iters: int) -> None:
+        """Optimise the finished map over every keyframe, sampled uniformly.
+
+        During the drive a keyframe gets most of its iterations while it is the newest, so the
+        views of the early drive end up fitted less well than the last ones. MonoGS ends with the
+        same kind of pass (its "colour refinement"); no Gaussian is added or pruned here.
+        """
+        if iters <= 0 or not self.keyframes:
+            return
+        self._optimize(len(self.keyframes) - 1, iters, lambda it: self._rng.choice(self.keyframes))
+
+    def _optimize(self, kf_idx: int, iters: int, pick) -> None:
+        """Adam on the map parameters against L1 colour + lambda_d L1 depth of the picked keyframes."""
+        cfg = self.cfg
         for p in self.map.params.values():
             p.requires_grad_(True)
         opt = self.map.optimizer
         if cfg.mapping_fresh_optimizer:
             opt.state.clear()
-        for it in range(cfg.mapping_iters):
-            kf = window[0] if it % 2 == 0 or len(window) == 1 else self._rng.choice(window[1:])
+        for it in range(iters):
+            kf = pick(it)
             out = self.render(kf.w2c, training=True, iteration=it)
             color_l1 = (out.color - kf.rgb).abs().mean()
             loss = color_l1 + cfg.lambda_depth_map * self._depth_l1(out, kf.depth)

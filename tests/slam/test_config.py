@@ -11,6 +11,8 @@ from bench.slam.system import SlamConfig
     [
         ({"tracking_iters": 0}, "slam.tracking_iters must be >= 1, got 0"),
         ({"kf_every": 0}, "slam.kf_every must be >= 1, got 0"),
+        ({"refine_iters": -1}, "slam.refine_iters must be >= 0, got -1"),
+        ({"mapping_window": 0}, "slam.mapping_window must be >= 1, got 0"),
         ({"tracking_mask": "fixed"}, "slam.tracking_mask must be 'current' or 'init', got 'fixed'"),
     ],
 )

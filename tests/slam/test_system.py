@@ -44,3 +44,19 @@ def test_second_frame_gets_its_own_iteration_count(seq, monkeypatch):
     # a keyframe adds one render for densification, mapping_iters for mapping and one for pruning
     assert n1 - (1 + 2 + 1) * kf1 == 7
     assert n2 - (1 + 2 + 1) * kf2 == 3
+
+
+def _keyframe_l1(s: System) -> float:
+    with torch.no_grad():
+        return sum(float((s.render(kf.w2c).color - kf.rgb).abs().mean()) for kf in s.keyframes) / len(s.keyframes)
+
+
+def test_refine_fits_the_keyframes_better_without_adding_gaussians(seq):
+    s = _system(seq, kf_every=1, mapping_iters=1)
+    for i in range(3):
+        s.process(seq[i])
+    n, before = len(s.map), _keyframe_l1(s)
+    s.refine(30)
+    assert len(s.map) == n
+    assert _keyframe_l1(s) < 0.9 * before, (before, _keyframe_l1(s))
+    s.refine(0)  # a no-op, not an error
