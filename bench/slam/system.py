@@ -14,6 +14,7 @@ import contextlib
 import logging
 import random
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -392,7 +393,7 @@ class System:
             return
         self._optimize(len(self.keyframes) - 1, iters, lambda it: self._rng.choice(self.keyframes))
 
-    def _optimize(self, kf_idx: int, iters: int, pick) -> None:
+    def _optimize(self, kf_idx: int, iters: int, pick: Callable[[int], _Keyframe]) -> None:
         """Adam on the map parameters against L1 colour + lambda_d L1 depth of the picked keyframes."""
         cfg = self.cfg
         for p in self.map.params.values():
