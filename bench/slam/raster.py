@@ -1,9 +1,14 @@
-"""A differentiable 16x16-tile Gaussian rasterizer in plain PyTorch (CPU and CUDA).
+"""A differentiable 16x16-tile Gaussian rasterizer: one projection front, two compositing backends.
 
-It follows the 3DGS CUDA conventions so that pruning statistics mean what they mean in
+The front (EWA projection, culling, tile rectangles) is torch, so autograd carries gradients from
+the screen-space quantities to every Gaussian parameter and the camera pose. Compositing is either
+the ``torch`` reference below (CPU and CUDA) or the compiled ``fused`` CPU backend
+(``bench/slam/raster_fused.py``), whose memory scales with Gaussians, pairs and pixels.
+
+Both follow the 3DGS CUDA conventions so that pruning statistics mean what they mean in
 the paper's code: EWA projection with a 0.3 px low-pass, alpha = min(0.99, o exp(-d^T S'^-1 d / 2)),
 contributions below 1/255 skipped, compositing front to back per tile and stopped once
-transmittance would fall below 1e-4. Instead of a per-pixel loop, each tile's depth-sorted
+transmittance would fall below 1e-4. In the torch reference, instead of a per-pixel loop, each tile's depth-sorted
 Gaussian list is padded into a dense block [tiles, 256, K] and composited with a cumulative
 sum of log-transmittance, so autograd provides gradients for every Gaussian and the pose.
 Tiles are grouped by list length before padding to bound wasted work.
@@ -16,6 +21,7 @@ from dataclasses import dataclass
 
 import torch
 
+from bench.errors import ConfigError
 from bench.slam.se3 import quat_to_rotmat
 
 TILE_PX = 16
@@ -77,33 +83,43 @@ def project(
     return means2d, cov2d, z
 
 
-def rasterize(
-    means: torch.Tensor,
-    log_scales: torch.Tensor,
-    quats: torch.Tensor,
-    opacities: torch.Tensor,
-    colors: torch.Tensor,
-    w2c: torch.Tensor,
-    K: torch.Tensor,
-    width: int,
-    height: int,
-    background: torch.Tensor | None = None,
-    near_m: float = 0.2,
-    stats: bool = False,
-    depth_far_m: float | None = None,
-) -> RasterOutput:
-    """Render Gaussians (world frame) through camera ``w2c`` [4, 4] with intrinsics ``K`` [3, 3].
+BACKENDS = ("auto", "fused", "torch")
 
-    ``depth_far_m``: Gaussians farther than this still paint colour and silhouette but add nothing
-    to the depth image. A near surface leaking 1% transmittance onto a sky Gaussian at 120 m
-    would otherwise shift its rendered depth by 1.2 m and bias depth-supervised tracking.
+
+def resolve_backend(backend: str, device: torch.device) -> str:
+    """``auto`` is the compiled ``fused`` backend on CPU and the torch reference on CUDA.
+
+    CUDA keeps the torch backend until a fused CUDA path has been verified on a GPU.
     """
-    device, dtype = means.device, means.dtype
-    N = means.shape[0]
+    if backend not in BACKENDS:
+        raise ConfigError(f"raster backend must be one of {', '.join(BACKENDS)}; found '{backend}'")
+    if backend == "auto":
+        return "fused" if device.type == "cpu" else "torch"
+    if backend == "fused" and device.type != "cpu":
+        raise ConfigError(f"the fused rasterizer runs on cpu tensors; found device '{device}' "
+                          "(use slam.raster_backend=torch or auto there)")
+    return backend
+
+
+@dataclass
+class _Front:
+    """Projection and culling shared by both backends (all in torch, differentiable where it matters)."""
+
+    means2d: torch.Tensor  # [N, 2]
+    cov2d: torch.Tensor  # [N, 2, 2]
+    z: torch.Tensor  # [N]
+    conic: torch.Tensor  # [N, 3] (a, b, c) of the inverse covariance
+    rect: torch.Tensor  # [N, 4] long tile rectangle (x0, x1, y0, y1); empty for culled Gaussians
+    counts: torch.Tensor  # [N] tiles touched
+    radius_px: torch.Tensor  # [N] long
+    tile_id: torch.Tensor  # [N] long
+    tiles_x: int
+    tiles_y: int
+
+
+def _front(means, log_scales, quats, w2c, K, width, height, near_m) -> _Front:
     tiles_x = (width + TILE_PX - 1) // TILE_PX
     tiles_y = (height + TILE_PX - 1) // TILE_PX
-    n_tiles = tiles_x * tiles_y
-
     cov3d = covariance3d(log_scales, quats)
     means2d, cov2d, z = project(means, cov3d, w2c, K, width, height)
     a, b, c = cov2d[:, 0, 0], cov2d[:, 0, 1], cov2d[:, 1, 1]
@@ -129,6 +145,8 @@ def rasterize(
         span_x = (tmax_x - tmin_x).long()
         span_y = (tmax_y - tmin_y).long()
         counts = torch.where(front, span_x * span_y, torch.zeros_like(span_x))
+        rect = torch.stack([tmin_x, tmax_x, tmin_y, tmax_y], -1).long()
+        rect[:, 1] = torch.where(counts > 0, rect[:, 1], rect[:, 0])  # culled: empty rectangle
         radius_px = torch.where(counts > 0, radius, torch.zeros_like(radius)).long()
         inside = front & (m2[:, 0] >= 0) & (m2[:, 0] < width) & (m2[:, 1] >= 0) & (m2[:, 1] < height)
         tile_id = torch.where(
@@ -137,14 +155,93 @@ def rasterize(
             + (m2[:, 0].clamp(0, width - 1) // TILE_PX).long(),
             torch.full_like(counts, -1),
         )
+    return _Front(means2d, cov2d, z, conic, rect, counts, radius_px, tile_id, tiles_x, tiles_y)
+
+
+def rasterize(
+    means: torch.Tensor,
+    log_scales: torch.Tensor,
+    quats: torch.Tensor,
+    opacities: torch.Tensor,
+    colors: torch.Tensor,
+    w2c: torch.Tensor,
+    K: torch.Tensor,
+    width: int,
+    height: int,
+    background: torch.Tensor | None = None,
+    near_m: float = 0.2,
+    stats: bool = False,
+    depth_far_m: float | None = None,
+    backend: str = "auto",
+) -> RasterOutput:
+    """Render Gaussians (world frame) through camera ``w2c`` [4, 4] with intrinsics ``K`` [3, 3].
+
+    ``depth_far_m``: Gaussians farther than this still paint colour and silhouette but add nothing
+    to the depth image. A near surface leaking 1% transmittance onto a sky Gaussian at 120 m
+    would otherwise shift its rendered depth by 1.2 m and bias depth-supervised tracking.
+
+    ``backend``: ``torch`` (the dense reference that autograd differentiates), ``fused`` (compiled
+    CPU kernels, ``bench/slam/raster_fused.py``) or ``auto`` (see ``resolve_backend``). Both return
+    the same outputs and gradients up to float32 rounding.
+    """
+    backend = resolve_backend(backend, means.device)
+    fr = _front(means, log_scales, quats, w2c, K, width, height, near_m)
+    z = fr.z
+    z_paint = z if depth_far_m is None else torch.where(z < depth_far_m, z, torch.zeros_like(z))
+    bg = torch.zeros(3, device=means.device, dtype=means.dtype) if background is None else background
+    if backend == "fused":
+        return _render_fused(fr, opacities, colors, z_paint, bg, width, height, stats)
+    return _render_torch(fr, opacities, colors, z_paint, bg, width, height, stats)
+
+
+def _render_fused(fr: _Front, opacities, colors, z_paint, bg, width, height, stats) -> RasterOutput:
+    from bench.slam import raster_fused  # numba compiles on first use; the torch backend never needs it
+
+    n_tiles = fr.tiles_x * fr.tiles_y
+    tile_start, gid = raster_fused.bin_pairs(fr.rect.to(torch.int32), fr.z, n_tiles, fr.tiles_x)
+    feat = torch.cat([colors, z_paint[:, None]], 1).float()  # [N, 4]
+    if gid.numel():
+        acc, t_final, coverage, hit_count, max_weight = raster_fused.composite(
+            fr.means2d.float(), fr.conic.float(), opacities.float(), feat, gid, tile_start,
+            width, height, fr.tiles_x, stats)
+    else:  # nothing in view: constant images that carry no gradient, as the torch backend returns
+        n = colors.shape[0]
+        acc, t_final = torch.zeros(width * height, 4), torch.ones(width * height)
+        coverage, hit_count, max_weight = torch.zeros(n), torch.zeros(n, dtype=torch.int64), torch.zeros(n)
+    dtype = colors.dtype
+    return RasterOutput(
+        color=(acc[:, :3] + t_final[:, None] * bg).to(dtype).reshape(height, width, 3),
+        depth=acc[:, 3].to(dtype).reshape(height, width),
+        alpha=(1.0 - t_final).to(dtype).reshape(height, width),
+        means2d=fr.means2d,
+        cov2d=fr.cov2d,
+        depths=fr.z,
+        radius_px=fr.radius_px,
+        tile_id=fr.tile_id,
+        tiles_xy=(fr.tiles_x, fr.tiles_y),
+        coverage=coverage.to(dtype) if stats else None,
+        hit_count=hit_count if stats else None,
+        max_weight=max_weight.to(dtype) if stats else None,
+    )
+
+
+def _render_torch(fr: _Front, opacities, colors, z_paint, bg, width, height, stats) -> RasterOutput:
+    means2d, conic, z, counts = fr.means2d, fr.conic, fr.z, fr.counts
+    tiles_x, tiles_y = fr.tiles_x, fr.tiles_y
+    n_tiles = tiles_x * tiles_y
+    device, dtype = means2d.device, means2d.dtype
+    N = means2d.shape[0]
+    tmin_x, tmin_y = fr.rect[:, 0], fr.rect[:, 2]
+    span_x = fr.rect[:, 1] - fr.rect[:, 0]
+    with torch.no_grad():
         # (tile, gaussian) pairs, sorted by tile then depth
         gid = torch.repeat_interleave(torch.arange(N, device=device), counts)
         if gid.numel():
             first = torch.cumsum(counts, 0) - counts
             local = torch.arange(gid.numel(), device=device) - first[gid]
             sx = span_x[gid].clamp_min(1)
-            tx = tmin_x[gid].long() + local % sx
-            ty = tmin_y[gid].long() + local // sx
+            tx = tmin_x[gid] + local % sx
+            ty = tmin_y[gid] + local // sx
             tid = ty * tiles_x + tx
             depth_rank = torch.empty(N, dtype=torch.long, device=device)
             depth_rank[torch.argsort(z.detach())] = torch.arange(N, device=device)
@@ -165,7 +262,6 @@ def rasterize(
         pix_valid = (px < width) & (py < height)
         pix_lin = torch.where(pix_valid, py * width + px, torch.full_like(px, height * width))
 
-    bg = torch.zeros(3, device=device, dtype=dtype) if background is None else background
     color_flat = torch.zeros(height * width + 1, 3, device=device, dtype=dtype)
     depth_flat = torch.zeros(height * width + 1, device=device, dtype=dtype)
     alpha_flat = torch.zeros(height * width + 1, device=device, dtype=dtype)
@@ -177,7 +273,6 @@ def rasterize(
     m2_ext = torch.cat([means2d, means2d.new_zeros(1, 2)])
     conic_ext = torch.cat([conic, conic.new_tensor([[1.0, 0.0, 1.0]])])
     log_op_ext = torch.cat([torch.log(opacities.clamp_min(1e-12)), opacities.new_full((1,), -1e4)])
-    z_paint = z if depth_far_m is None else torch.where(z < depth_far_m, z, torch.zeros_like(z))
     feat_ext = torch.cat([torch.cat([colors, z_paint[:, None]], 1), colors.new_zeros(1, 4)])  # [N+1, 4]
     fy_, fx_ = (
         t.reshape(-1).to(dtype)
@@ -268,10 +363,10 @@ def rasterize(
         depth=depth_flat[:-1].reshape(height, width),
         alpha=alpha_flat[:-1].reshape(height, width),
         means2d=means2d,
-        cov2d=cov2d,
+        cov2d=fr.cov2d,
         depths=z,
-        radius_px=radius_px,
-        tile_id=tile_id,
+        radius_px=fr.radius_px,
+        tile_id=fr.tile_id,
         tiles_xy=(tiles_x, tiles_y),
         coverage=coverage,
         hit_count=hit_count,

@@ -24,7 +24,7 @@ from bench.datasets.base import Frame
 from bench.errors import ConfigError, TrackingLost
 from bench.slam.frontend import FlowPnpConfig, relative_motion, to_gray_u8
 from bench.slam.gaussians import DEFAULT_LRS, GaussianMap
-from bench.slam.raster import RasterOutput, rasterize
+from bench.slam.raster import BACKENDS, RasterOutput, rasterize
 from bench.slam.se3 import inverse, se3_exp, so3_log
 from bench.strategy import MappingContext, PruneContext, Strategy, TrackingContext
 
@@ -59,6 +59,9 @@ class SlamConfig:
     depth_loss_max_m: float = 30.0  # far pixels (sky, distant road) only constrain colour
     depth_far_m: float | None = 60.0  # Gaussians beyond this add no depth (see rasterize); None = all do
     depth_normalized: bool = False  # compare depth / silhouette (unbiased where coverage < 1)
+    # compositing backend (bench/slam/raster.py): auto = the compiled "fused" kernels on CPU, the
+    # "torch" reference on CUDA; both give the same images and gradients up to float32 rounding
+    raster_backend: str = "auto"
     mapping_iters: int = 100  # paper: 100 per keyframe
     mapping_fresh_optimizer: bool = True  # new Adam moments per keyframe, as SplaTAM does
     # keyframes optimised together (current one included); None = all. Half the iterations go to the
@@ -92,6 +95,10 @@ class SlamConfig:
                 raise ConfigError(f"slam.{name} must be >= {least}, got {getattr(self, name)}")
         if self.tracking_mask not in ("current", "init"):
             raise ConfigError(f"slam.tracking_mask must be 'current' or 'init', got '{self.tracking_mask}'")
+        if self.raster_backend not in BACKENDS:
+            raise ConfigError(
+                f"slam.raster_backend must be one of {', '.join(BACKENDS)}; found '{self.raster_backend}'"
+            )
         if self.tracking_init not in ("velocity", "flow_pnp"):
             raise ConfigError(f"slam.tracking_init must be 'velocity' or 'flow_pnp', got '{self.tracking_init}'")
         bad_lrs = sorted(set(self.lrs) - set(DEFAULT_LRS))
@@ -172,7 +179,7 @@ class System:
         if mask is not None:
             op = op * mask
         return rasterize(g.means, g.log_scales, g.quats, op, g.colors, w2c, self.K, self.W, self.H, stats=stats,
-                         depth_far_m=self.cfg.depth_far_m)
+                         depth_far_m=self.cfg.depth_far_m, backend=self.cfg.raster_backend)
 
     def _phase(self, name: str):
         return self._timer.phase(name) if self._timer is not None else contextlib.nullcontext()

@@ -1,0 +1,371 @@
+"""The ``fused`` rasterizer backend: compiled CPU kernels for binning, compositing and its gradient.
+
+The torch backend pads every tile's list into dense ``[tiles, 256, K]`` blocks that autograd keeps
+for the backward pass, so its memory follows the tile overlaps of the largest Gaussians rather than
+the number of Gaussians. This backend keeps what the CUDA rasterizer of 3DGS keeps: the
+(tile, Gaussian) list sorted by tile then depth, each Gaussian's projected quantities, and per pixel
+the final transmittance and the index of its last contributor. The backward pass walks each
+pixel's contributors back to front and recomputes the rest.
+
+Design choices, and why:
+- Gaussian-major loops inside a tile: the depth-sorted list is walked once and each Gaussian visits
+  only the pixels of its exact 1/255 bounding box (the ellipse where ``o exp(-d^T S^-1 d / 2)``
+  reaches 1/255), so the cost is the sum of box areas, not pixels x list length. Per-pixel
+  compositing order is still front to back because the list is depth-sorted.
+- Determinism: tiles run in parallel but each writes only its own pixels and its own slice of the
+  pair list. Per-Gaussian sums (gradients, pruning statistics) are first written per pair, then
+  reduced over pairs in list order by one sequential loop. The result does not depend on the
+  thread count or the schedule: bit-identical from run to run.
+- Every buffer the kernels fill is a torch tensor (they receive numpy views), so the live-tensor
+  memory probe of ``bench/measure.py`` counts it. Only a 256-entry "done" flag per tile and the
+  kernels' scalars live outside torch.
+- float32 throughout, with float32 literals: numba promotes mixed int/float32 arithmetic to float64.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import torch
+from numba import njit, prange
+
+TILE = 16
+_F = np.float32
+ALPHA_MIN = _F(1.0 / 255.0)
+ALPHA_MAX = _F(0.99)
+T_MIN = _F(1e-4)
+LN255 = _F(math.log(255.0))
+# the pruning statistic C_i sums o exp(power) over whole tiles; terms below exp(-20) of the peak are
+# dropped, which changes no float32 sum
+COVERAGE_POWER_MIN = _F(-20.0)
+N_FEAT = 4  # r, g, b, depth
+
+
+@njit(cache=True)
+def _bin_pairs(order, rect, n_tiles, tiles_x):  # pragma: no cover - compiled
+    """Counting sort of (tile, Gaussian) pairs by tile; within a tile by depth (``order`` is depth-sorted).
+
+    rect: [N, 4] int32 tile rectangle (x0, x1, y0, y1), empty when x0 == x1 or y0 == y1.
+    Returns tile_start [n_tiles + 1] (int64) and gid [P] (int32).
+    """
+    counts = np.zeros(n_tiles + 1, np.int64)
+    for j in range(order.shape[0]):
+        g = order[j]
+        for ty in range(rect[g, 2], rect[g, 3]):
+            for tx in range(rect[g, 0], rect[g, 1]):
+                counts[ty * tiles_x + tx + 1] += 1
+    for t in range(n_tiles):
+        counts[t + 1] += counts[t]
+    gid = np.empty(counts[n_tiles], np.int32)
+    fill = counts[:n_tiles].copy()
+    for j in range(order.shape[0]):
+        g = order[j]
+        for ty in range(rect[g, 2], rect[g, 3]):
+            for tx in range(rect[g, 0], rect[g, 1]):
+                t = ty * tiles_x + tx
+                gid[fill[t]] = g
+                fill[t] += 1
+    return counts, gid
+
+
+@njit(cache=True, inline="always")
+def _box(mx, my, a, b, c, o, x0, x1, y0, y1):  # pragma: no cover - compiled
+    """Pixels [bx0, bx1) x [by0, by1) of the tile where o exp(power) can reach 1/255 (empty if none)."""
+    if o < ALPHA_MIN:
+        return 0, 0, 0, 0
+    r2 = _F(2.0) * (LN255 + np.log(o))  # d^T S^-1 d <= r2  <=>  o exp(power) >= 1/255
+    det = a * c - b * b
+    if det <= _F(0.0):
+        return 0, 0, 0, 0
+    ex = np.sqrt(r2 * c / det) + _F(1e-3)  # axis extents of the ellipse (S_xx = c / det, S_yy = a / det)
+    ey = np.sqrt(r2 * a / det) + _F(1e-3)
+    bx0 = max(x0, int(np.ceil(mx - ex)))
+    bx1 = min(x1, int(np.floor(mx + ex)) + 1)
+    by0 = max(y0, int(np.ceil(my - ey)))
+    by1 = min(y1, int(np.floor(my + ey)) + 1)
+    if bx0 >= bx1 or by0 >= by1:
+        return 0, 0, 0, 0
+    return bx0, bx1, by0, by1
+
+
+@njit(parallel=True, cache=True)
+def _forward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x, stats,
+             acc, t_final, last, pair_cov, pair_hits, pair_maxw):  # pragma: no cover - compiled
+    """Front-to-back compositing per tile; fills acc [H*W, 4], t_final [H*W], last [H*W] (pair index).
+
+    With ``stats`` it also fills, per pair, the coverage sum over the tile, the pixels contributed to
+    and the largest blending weight.
+    """
+    n_tiles = tile_start.shape[0] - 1
+    for t in prange(n_tiles):
+        x0 = (t % tiles_x) * TILE
+        y0 = (t // tiles_x) * TILE
+        x1 = min(x0 + TILE, width)
+        y1 = min(y0 + TILE, height)
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                p = y * width + x
+                t_final[p] = _F(1.0)
+                last[p] = -1
+                for ch in range(N_FEAT):
+                    acc[p, ch] = _F(0.0)
+        done = np.zeros(TILE * TILE, np.bool_)
+        n_active = (x1 - x0) * (y1 - y0)
+        for k in range(tile_start[t], tile_start[t + 1]):
+            if n_active == 0 and not stats:
+                break
+            g = gid[k]
+            mx, my = m2[g, 0], m2[g, 1]
+            a, b, c = conic[g, 0], conic[g, 1], conic[g, 2]
+            o = opac[g]
+            hits = 0
+            maxw = _F(0.0)
+            if n_active > 0:
+                bx0, bx1, by0, by1 = _box(mx, my, a, b, c, o, x0, x1, y0, y1)
+                for y in range(by0, by1):
+                    dy = _F(y) - my
+                    for x in range(bx0, bx1):
+                        li = (y - y0) * TILE + (x - x0)
+                        if done[li]:
+                            continue
+                        dx = _F(x) - mx
+                        power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
+                        raw = o * np.exp(power)
+                        if raw < ALPHA_MIN:
+                            continue
+                        alpha = min(raw, ALPHA_MAX)
+                        p = y * width + x
+                        tp = t_final[p]
+                        test_t = tp * (_F(1.0) - alpha)
+                        if test_t < T_MIN:
+                            done[li] = True
+                            n_active -= 1
+                            continue
+                        w = alpha * tp
+                        for ch in range(N_FEAT):
+                            acc[p, ch] += w * feat[g, ch]
+                        t_final[p] = test_t
+                        last[p] = k
+                        hits += 1
+                        if w > maxw:
+                            maxw = w
+            if stats:
+                pair_hits[k] = hits
+                pair_maxw[k] = maxw
+                cov = _F(0.0)
+                det = a * c - b * b
+                if o > _F(0.0) and det > _F(0.0):
+                    r2 = _F(-2.0) * COVERAGE_POWER_MIN
+                    ex = np.sqrt(r2 * c / det) + _F(1.0)
+                    ey = np.sqrt(r2 * a / det) + _F(1.0)
+                    cx0 = max(x0, int(np.ceil(mx - ex)))
+                    cx1 = min(x1, int(np.floor(mx + ex)) + 1)
+                    cy0 = max(y0, int(np.ceil(my - ey)))
+                    cy1 = min(y1, int(np.floor(my + ey)) + 1)
+                    for y in range(cy0, cy1):
+                        dy = _F(y) - my
+                        for x in range(cx0, cx1):
+                            dx = _F(x) - mx
+                            power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
+                            cov += o * np.exp(power)
+                pair_cov[k] = cov
+
+
+@njit(parallel=True, cache=True)
+def _backward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x,
+              t_final, last, g_acc, g_t, pair_grad):  # pragma: no cover - compiled
+    """Per pixel, back to front from its last contributor (3DGS's backward pass).
+
+    pair_grad [P, 10]: d/d(mean2d x, y), d/d(conic a, b, c), d/d opacity, d/d features (4) of the
+    pair's Gaussian, summed over the tile's pixels in a fixed order.
+    """
+    n_tiles = tile_start.shape[0] - 1
+    for t in prange(n_tiles):
+        x0 = (t % tiles_x) * TILE
+        y0 = (t // tiles_x) * TILE
+        x1 = min(x0 + TILE, width)
+        y1 = min(y0 + TILE, height)
+        s, e = tile_start[t], tile_start[t + 1]
+        for k in range(s, e):
+            for j in range(10):
+                pair_grad[k, j] = _F(0.0)
+        k_last = -1
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                k_last = max(k_last, last[y * width + x])
+        if k_last < 0:
+            continue
+        # per pixel: transmittance in front of the Gaussian being visited, and the features
+        # accumulated behind it (sum of w_i f_i over later contributors)
+        tcur = np.empty(TILE * TILE, np.float32)
+        behind = np.zeros((TILE * TILE, N_FEAT), np.float32)
+        for y in range(y0, y1):
+            for x in range(x0, x1):
+                tcur[(y - y0) * TILE + (x - x0)] = t_final[y * width + x]
+        for k in range(k_last, s - 1, -1):
+            g = gid[k]
+            mx, my = m2[g, 0], m2[g, 1]
+            a, b, c = conic[g, 0], conic[g, 1], conic[g, 2]
+            o = opac[g]
+            bx0, bx1, by0, by1 = _box(mx, my, a, b, c, o, x0, x1, y0, y1)
+            gmx = gmy = ga = gb = gc = go = _F(0.0)
+            gf0 = gf1 = gf2 = gf3 = _F(0.0)
+            f0, f1, f2, f3 = feat[g, 0], feat[g, 1], feat[g, 2], feat[g, 3]
+            for y in range(by0, by1):
+                dy = _F(y) - my
+                for x in range(bx0, bx1):
+                    p = y * width + x
+                    if last[p] < k:
+                        continue
+                    dx = _F(x) - mx
+                    power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
+                    gauss = np.exp(power)
+                    raw = o * gauss
+                    if raw < ALPHA_MIN:
+                        continue
+                    alpha = min(raw, ALPHA_MAX)
+                    li = (y - y0) * TILE + (x - x0)
+                    one_m = _F(1.0) - alpha
+                    t_before = tcur[li] / one_m
+                    w = alpha * t_before
+                    q0, q1, q2, q3 = g_acc[p, 0], g_acc[p, 1], g_acc[p, 2], g_acc[p, 3]
+                    gf0 += w * q0
+                    gf1 += w * q1
+                    gf2 += w * q2
+                    gf3 += w * q3
+                    # d acc / d alpha = f T_before - behind / (1 - alpha); d T_final / d alpha = -T_final / (1 - alpha)
+                    g_alpha = (q0 * (f0 * t_before - behind[li, 0] / one_m)
+                               + q1 * (f1 * t_before - behind[li, 1] / one_m)
+                               + q2 * (f2 * t_before - behind[li, 2] / one_m)
+                               + q3 * (f3 * t_before - behind[li, 3] / one_m)
+                               - g_t[p] * t_final[p] / one_m)
+                    behind[li, 0] += w * f0
+                    behind[li, 1] += w * f1
+                    behind[li, 2] += w * f2
+                    behind[li, 3] += w * f3
+                    tcur[li] = t_before
+                    if raw < ALPHA_MAX:  # the clamp at 0.99 passes no gradient
+                        go += g_alpha * gauss
+                        g_pow = g_alpha * raw
+                        gmx += g_pow * (a * dx + b * dy)
+                        gmy += g_pow * (c * dy + b * dx)
+                        ga += g_pow * (_F(-0.5) * dx * dx)
+                        gc += g_pow * (_F(-0.5) * dy * dy)
+                        gb += g_pow * (-dx * dy)
+            pair_grad[k, 0] = gmx
+            pair_grad[k, 1] = gmy
+            pair_grad[k, 2] = ga
+            pair_grad[k, 3] = gb
+            pair_grad[k, 4] = gc
+            pair_grad[k, 5] = go
+            pair_grad[k, 6] = gf0
+            pair_grad[k, 7] = gf1
+            pair_grad[k, 8] = gf2
+            pair_grad[k, 9] = gf3
+
+
+@njit(cache=True)
+def _reduce_sum(gid, pair_vals, out):  # pragma: no cover - compiled
+    """out[gid[k]] += pair_vals[k] in list order: one fixed summation order, whatever the threads."""
+    for k in range(gid.shape[0]):
+        g = gid[k]
+        for j in range(pair_vals.shape[1]):
+            out[g, j] += pair_vals[k, j]
+
+
+@njit(cache=True)
+def _reduce_stats(gid, pair_cov, pair_hits, pair_maxw, coverage, hit_count, max_weight):  # pragma: no cover
+    for k in range(gid.shape[0]):
+        g = gid[k]
+        coverage[g] += pair_cov[k]
+        hit_count[g] += pair_hits[k]
+        if pair_maxw[k] > max_weight[g]:
+            max_weight[g] = pair_maxw[k]
+
+
+def _threads() -> None:
+    """Run the kernels on as many threads as torch uses (``threads=`` / ``torch.set_num_threads``)."""
+    numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
+
+
+def bin_pairs(
+    rect: torch.Tensor, depths: torch.Tensor, n_tiles: int, tiles_x: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(tile_start [n_tiles + 1] int64, gid [P] int32): pairs sorted by tile, then by depth.
+
+    rect: [N, 4] int32 (x0, x1, y0, y1) tile rectangle of each Gaussian, empty when culled.
+    """
+    order = torch.argsort(depths.detach(), stable=True).to(torch.int32)  # [N]
+    tile_start, gid = _bin_pairs(order.numpy(), rect.numpy(), n_tiles, tiles_x)
+    return torch.from_numpy(tile_start), torch.from_numpy(gid)
+
+
+class _Composite(torch.autograd.Function):
+    """Differentiable compositing of projected Gaussians; per-pixel outputs acc [H*W, 4] and T [H*W]."""
+
+    @staticmethod
+    def forward(ctx, means2d, conic, opac, feat, gid, tile_start, width, height, tiles_x, stats):  # type: ignore[override]
+        _threads()
+        m2 = means2d.detach().contiguous()
+        co = conic.detach().contiguous()
+        op = opac.detach().contiguous()
+        ft = feat.detach().contiguous()
+        hw = width * height
+        acc = torch.empty(hw, N_FEAT, dtype=torch.float32)  # [H*W, 4]
+        t_final = torch.empty(hw, dtype=torch.float32)  # [H*W]
+        last = torch.empty(hw, dtype=torch.int64)  # [H*W] pair index of the last contributor, -1 none
+        n_pairs = int(gid.shape[0]) if stats else 0
+        pair_cov = torch.empty(n_pairs, dtype=torch.float32)
+        pair_hits = torch.empty(n_pairs, dtype=torch.int32)
+        pair_maxw = torch.empty(n_pairs, dtype=torch.float32)
+        _forward(gid.numpy(), tile_start.numpy(), m2.numpy(), co.numpy(), op.numpy(), ft.numpy(),
+                 width, height, tiles_x, stats, acc.numpy(), t_final.numpy(), last.numpy(),
+                 pair_cov.numpy(), pair_hits.numpy(), pair_maxw.numpy())
+        n = m2.shape[0]
+        coverage = torch.zeros(n if stats else 0, dtype=torch.float32)
+        hit_count = torch.zeros(n if stats else 0, dtype=torch.int64)
+        max_weight = torch.zeros(n if stats else 0, dtype=torch.float32)
+        if stats:
+            _reduce_stats(gid.numpy(), pair_cov.numpy(), pair_hits.numpy(), pair_maxw.numpy(),
+                          coverage.numpy(), hit_count.numpy(), max_weight.numpy())
+        del pair_cov, pair_hits, pair_maxw
+        ctx.save_for_backward(m2, co, op, ft, gid, tile_start, t_final, last)
+        ctx.dims = (width, height, tiles_x)
+        ctx.mark_non_differentiable(coverage, hit_count, max_weight)
+        return acc, t_final, coverage, hit_count, max_weight
+
+    @staticmethod
+    def backward(ctx, g_acc, g_t, *_):  # type: ignore[override]
+        _threads()
+        m2, co, op, ft, gid, tile_start, t_final, last = ctx.saved_tensors
+        width, height, tiles_x = ctx.dims
+        hw = width * height
+        g_acc = torch.zeros(hw, N_FEAT) if g_acc is None else g_acc.contiguous().to(torch.float32)
+        g_t = torch.zeros(hw) if g_t is None else g_t.contiguous().to(torch.float32)
+        pair_grad = torch.empty(gid.shape[0], 10, dtype=torch.float32)  # [P, 10]
+        _backward(gid.numpy(), tile_start.numpy(), m2.numpy(), co.numpy(), op.numpy(), ft.numpy(),
+                  width, height, tiles_x, t_final.numpy(), last.numpy(), g_acc.numpy(), g_t.numpy(),
+                  pair_grad.numpy())
+        grad = torch.zeros(m2.shape[0], 10, dtype=torch.float32)  # [N, 10]
+        _reduce_sum(gid.numpy(), pair_grad.numpy(), grad.numpy())
+        del pair_grad
+        return grad[:, 0:2], grad[:, 2:5], grad[:, 5], grad[:, 6:10], None, None, None, None, None, None
+
+
+def composite(
+    means2d: torch.Tensor,
+    conic: torch.Tensor,
+    opac: torch.Tensor,
+    feat: torch.Tensor,
+    gid: torch.Tensor,
+    tile_start: torch.Tensor,
+    width: int,
+    height: int,
+    tiles_x: int,
+    stats: bool,
+) -> tuple[torch.Tensor, ...]:
+    """acc [H*W, 4], T_final [H*W], and (stats) coverage, hit_count, max_weight [N]; differentiable in
+    means2d [N, 2], conic [N, 3] (a, b, c of the inverse covariance), opac [N] and feat [N, 4]."""
+    return _Composite.apply(means2d, conic, opac, feat, gid, tile_start, width, height, tiles_x, stats)

@@ -1,0 +1,168 @@
+"""The fused (compiled) backend against the torch reference: values, gradients, edge cases, determinism."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from bench.errors import ConfigError
+from bench.measure import MemoryProbe
+from bench.slam.raster import rasterize, resolve_backend
+from bench.slam.se3 import se3_exp
+
+POSE = torch.tensor([0.05, -0.02, 0.1, 0.02, -0.03, 0.01])
+FIELDS = ("color", "depth", "alpha")
+
+
+def scene(n=40, seed=0, z_min=2.0, opacity=(0.05, 0.95), scale=(0.05, 0.3)):
+    g = torch.Generator().manual_seed(seed)
+    means = torch.cat([torch.rand(n, 2, generator=g) * 2.4 - 1.2, torch.rand(n, 1, generator=g) * 3 + z_min], 1)
+    log_scales = torch.log(torch.rand(n, 3, generator=g) * (scale[1] - scale[0]) + scale[0])
+    quats = torch.randn(n, 4, generator=g)
+    opac = torch.rand(n, generator=g) * (opacity[1] - opacity[0]) + opacity[0]
+    colors = torch.rand(n, 3, generator=g)
+    K = torch.tensor([[30.0, 0, 19.5], [0, 30.0, 15.5], [0, 0, 1]])
+    return means, log_scales, quats, opac, colors, K
+
+
+def both(params, K, W, H, w2c=None, **kw):
+    w2c = se3_exp(POSE) if w2c is None else w2c
+    return [rasterize(*params, w2c, K, W, H, backend=b, **kw) for b in ("torch", "fused")]
+
+
+def assert_same_images(ref, got):
+    for f in FIELDS:
+        torch.testing.assert_close(getattr(got, f), getattr(ref, f), atol=2e-5, rtol=1e-4, msg=f)
+    for f in ("means2d", "cov2d", "depths", "radius_px", "tile_id"):
+        torch.testing.assert_close(getattr(got, f), getattr(ref, f), msg=f)
+
+
+@pytest.mark.parametrize("W,H", [(40, 32), (33, 17), (16, 16), (7, 5)])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_values_and_stats_match_torch(W, H, seed):
+    *params, _ = scene(seed=seed)
+    K = torch.tensor([[0.75 * W, 0, W / 2 - 0.5], [0, 0.75 * W, H / 2 - 0.5], [0, 0, 1]])
+    ref, got = both(params, K, W, H, stats=True)
+    assert ref.alpha.max() > 0.3  # something is visible
+    assert_same_images(ref, got)
+    torch.testing.assert_close(got.coverage, ref.coverage, atol=1e-4, rtol=1e-4)
+    torch.testing.assert_close(got.max_weight, ref.max_weight, atol=1e-5, rtol=1e-4)
+    assert (got.hit_count - ref.hit_count).abs().max() <= 1  # a pixel exactly at the 1/255 edge may flip
+    assert got.hit_count.sum() > 0
+
+
+def grads(params, K, W, H, backend, target, w2c_base):
+    leaves = [t.clone().requires_grad_(True) for t in params]
+    xi = torch.zeros(6, requires_grad=True)
+    out = rasterize(*leaves, se3_exp(xi) @ w2c_base, K, W, H, backend=backend)
+    loss = (out.color - target).abs().mean() + 0.1 * out.depth.mean() + 0.3 * (out.alpha - 0.5).pow(2).mean()
+    loss.backward()
+    return [t.grad for t in leaves] + [xi.grad]
+
+
+@pytest.mark.parametrize("seed,W,H", [(0, 40, 32), (2, 33, 17)])
+def test_gradients_match_torch_including_pose(seed, W, H):
+    *params, K = scene(seed=seed)
+    target = torch.rand(H, W, 3, generator=torch.Generator().manual_seed(9))
+    ref = grads(params, K, W, H, "torch", target, se3_exp(POSE))
+    got = grads(params, K, W, H, "fused", target, se3_exp(POSE))
+    for name, g, r in zip(["means", "log_scales", "quats", "opacity", "colors", "pose"], got, ref, strict=True):
+        assert r.abs().max() > 0, name
+        torch.testing.assert_close(g, r, atol=2e-6, rtol=2e-3, msg=name)
+
+
+def test_saturated_tiles_stop_compositing():
+    # many opaque, large Gaussians stacked in depth: T falls below 1e-4 early in every pixel
+    *params, K = scene(n=80, seed=3, opacity=(0.9, 0.99), scale=(0.4, 0.8))
+    params[0] = params[0] * torch.tensor([0.3, 0.3, 1.0])
+    ref, got = both(params, K, 40, 32, stats=True)
+    # T stops just above 1e-4, so saturated pixels end with alpha in (0.999, 0.9999]
+    assert (ref.alpha > 0.999).float().mean() > 0.3
+    assert_same_images(ref, got)
+    target = torch.rand(32, 40, 3, generator=torch.Generator().manual_seed(1))
+    for g, r in zip(grads(params, K, 40, 32, "fused", target, se3_exp(POSE)),
+                    grads(params, K, 40, 32, "torch", target, se3_exp(POSE)), strict=True):
+        torch.testing.assert_close(g, r, atol=2e-6, rtol=2e-3)
+
+
+def test_gaussian_straddling_tiles():
+    # one wide Gaussian centred on the corner of four tiles
+    means = torch.tensor([[0.0, 0.0, 2.0]])
+    K = torch.tensor([[30.0, 0, 16.0], [0, 30.0, 16.0], [0, 0, 1]])
+    params = [means, torch.log(torch.tensor([[0.2, 0.15, 0.1]])), torch.tensor([[0.9, 0.1, 0.2, 0.3]]),
+              torch.tensor([0.8]), torch.tensor([[0.2, 0.5, 0.9]])]
+    ref, got = both(params, K, 32, 32, w2c=torch.eye(4), stats=True)
+    assert int(ref.radius_px[0]) > 8
+    assert (ref.alpha[:16, :16] > 0.01).any() and (ref.alpha[16:, 16:] > 0.01).any()
+    assert_same_images(ref, got)
+    torch.testing.assert_close(got.coverage, ref.coverage, rtol=1e-4, atol=1e-4)
+
+
+def test_empty_view_and_gaussians_behind_camera():
+    *params, K = scene(n=10, seed=4)
+    behind = [params[0] * torch.tensor([1.0, 1.0, -1.0])] + params[1:]
+    for p in (behind, [t[:0] for t in params]):
+        ref, got = both(p, K, 40, 32, w2c=torch.eye(4), stats=True)
+        assert got.alpha.abs().max() == 0 and got.color.abs().max() == 0
+        assert_same_images(ref, got)
+        assert (got.tile_id == -1).all() and (got.radius_px == 0).all()
+    # nothing in view: like the torch backend, the images carry no gradient (tracking reads that as lost)
+    leaves = [t.clone().requires_grad_(True) for t in behind]
+    for backend in ("torch", "fused"):
+        out = rasterize(*leaves, torch.eye(4), K, 40, 32, backend=backend)
+        assert not out.color.requires_grad and not out.alpha.requires_grad
+
+
+def test_background_shows_through():
+    *params, K = scene(seed=5)
+    bg = torch.tensor([0.2, 0.4, 0.6])
+    ref = rasterize(*params, se3_exp(POSE), K, 40, 32, background=bg, backend="torch")
+    got = rasterize(*params, se3_exp(POSE), K, 40, 32, background=bg, backend="fused")
+    torch.testing.assert_close(got.color, ref.color, atol=2e-5, rtol=1e-4)
+
+
+def test_gradients_are_bit_identical_run_to_run():
+    *params, K = scene(n=300, seed=6)
+    target = torch.rand(32, 40, 3, generator=torch.Generator().manual_seed(2))
+    first = grads(params, K, 40, 32, "fused", target, se3_exp(POSE))
+    threads = torch.get_num_threads()
+    try:
+        for n_threads in (1, 2):
+            torch.set_num_threads(n_threads)
+            again = grads(params, K, 40, 32, "fused", target, se3_exp(POSE))
+            for a, b in zip(first, again, strict=True):
+                assert torch.equal(a, b)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def test_peak_memory_grows_with_gaussian_count():
+    """A fixed view rendered with N and 2N Gaussians: the fused peak follows the count."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    from raster_bench import scene as bench_scene
+
+    peaks = {}
+    for n in (4000, 8000):
+        params, K = bench_scene(n, 160, 96, torch.device("cpu"))
+        probe = MemoryProbe(torch.device("cpu"))
+        probe.start_window()
+        out = rasterize(*params, torch.eye(4), K, 160, 96, backend="fused")
+        (out.color.sum() + out.depth.sum()).backward()
+        peaks[n] = probe.end_window()["torch_live_peak_mib"]
+        probe.close()
+        del out
+    if peaks[4000] is None:
+        pytest.skip("the live-tensor probe is unavailable here")
+    assert peaks[8000] > 1.5 * peaks[4000]
+
+
+def test_backend_choice():
+    assert resolve_backend("auto", torch.device("cpu")) == "fused"
+    assert resolve_backend("auto", torch.device("cuda")) == "torch"
+    with pytest.raises(ConfigError, match="found 'cuda_fast'"):
+        resolve_backend("cuda_fast", torch.device("cpu"))
+    with pytest.raises(ConfigError, match="runs on cpu tensors"):
+        resolve_backend("fused", torch.device("cuda"))
