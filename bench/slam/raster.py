@@ -158,6 +158,23 @@ def _front(means, log_scales, quats, w2c, K, width, height, near_m) -> _Front:
     return _Front(means2d, cov2d, z, conic, rect, counts, radius_px, tile_id, tiles_x, tiles_y)
 
 
+def _front_fused(means, log_scales, quats, w2c, K, width, height, near_m) -> _Front:
+    """``_front`` computed by one compiled kernel (and its hand-written backward)."""
+    from bench.slam import raster_fused
+
+    tiles_x = (width + TILE_PX - 1) // TILE_PX
+    tiles_y = (height + TILE_PX - 1) // TILE_PX
+    means2d, cov, z, rect, radius_px, tile_id = raster_fused.project(
+        means, log_scales, quats, w2c, K, width, height, near_m, tiles_x, tiles_y)
+    a, b, c = cov.unbind(-1)
+    det = a * c - b * b
+    det_safe = torch.where(det > 0, det, torch.ones_like(det))
+    conic = torch.stack([c / det_safe, -b / det_safe, a / det_safe], -1)  # [N, 3] inverse covariance
+    cov2d = torch.stack([a, b, b, c], -1).reshape(-1, 2, 2)
+    counts = (rect[:, 1] - rect[:, 0]).long() * (rect[:, 3] - rect[:, 2]).long()
+    return _Front(means2d, cov2d, z, conic, rect, counts, radius_px, tile_id, tiles_x, tiles_y)
+
+
 def rasterize(
     means: torch.Tensor,
     log_scales: torch.Tensor,
@@ -185,7 +202,8 @@ def rasterize(
     the same outputs and gradients up to float32 rounding.
     """
     backend = resolve_backend(backend, means.device)
-    fr = _front(means, log_scales, quats, w2c, K, width, height, near_m)
+    front = _front_fused if backend == "fused" else _front
+    fr = front(means, log_scales, quats, w2c, K, width, height, near_m)
     z = fr.z
     z_paint = z if depth_far_m is None else torch.where(z < depth_far_m, z, torch.zeros_like(z))
     bg = torch.zeros(3, device=means.device, dtype=means.dtype) if background is None else background

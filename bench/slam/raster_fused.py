@@ -285,6 +285,265 @@ def _reduce_stats(gid, pair_cov, pair_hits, pair_maxw, coverage, hit_count, max_
             max_weight[g] = pair_maxw[k]
 
 
+@njit(cache=True, inline="always")
+def _rotmat(qw, qx, qy, qz):  # pragma: no cover - compiled
+    return (_F(1.0) - _F(2.0) * (qy * qy + qz * qz), _F(2.0) * (qx * qy - qw * qz), _F(2.0) * (qx * qz + qw * qy),
+            _F(2.0) * (qx * qy + qw * qz), _F(1.0) - _F(2.0) * (qx * qx + qz * qz), _F(2.0) * (qy * qz - qw * qx),
+            _F(2.0) * (qx * qz - qw * qy), _F(2.0) * (qy * qz + qw * qx), _F(1.0) - _F(2.0) * (qx * qx + qy * qy))
+
+
+@njit(parallel=True, cache=True)
+def _project_fwd(means, log_scales, quats, rc, tc, cam, width, height, near_m, tiles_x, tiles_y,
+                 m2, cov, z_out, rect, radius_px, tile_id):  # pragma: no cover - compiled
+    """EWA projection as ``raster.project`` computes it, plus culling and the tile rectangle.
+
+    cam: (fx, fy, cx, cy); cov [N, 3] = (a, b, c) of the screen covariance incl. the 0.3 px low-pass.
+    """
+    fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
+    lim_x = _F(1.3) * (_F(0.5) * _F(width) / fx)
+    lim_y = _F(1.3) * (_F(0.5) * _F(height) / fy)
+    for i in prange(means.shape[0]):
+        mw0, mw1, mw2 = means[i, 0], means[i, 1], means[i, 2]
+        px = rc[0, 0] * mw0 + rc[0, 1] * mw1 + rc[0, 2] * mw2 + tc[0]
+        py = rc[1, 0] * mw0 + rc[1, 1] * mw1 + rc[1, 2] * mw2 + tc[1]
+        pz = rc[2, 0] * mw0 + rc[2, 1] * mw1 + rc[2, 2] * mw2 + tc[2]
+        zs = pz if abs(pz) >= _F(1e-6) else _F(1e-6)
+        tx = min(max(px / zs, -lim_x), lim_x) * zs
+        ty = min(max(py / zs, -lim_y), lim_y) * zs
+        j00, j02 = fx / zs, -fx * tx / (zs * zs)
+        j11, j12 = fy / zs, -fy * ty / (zs * zs)
+        # T = J Rc  [2, 3]
+        t00 = j00 * rc[0, 0] + j02 * rc[2, 0]
+        t01 = j00 * rc[0, 1] + j02 * rc[2, 1]
+        t02 = j00 * rc[0, 2] + j02 * rc[2, 2]
+        t10 = j11 * rc[1, 0] + j12 * rc[2, 0]
+        t11 = j11 * rc[1, 1] + j12 * rc[2, 1]
+        t12 = j11 * rc[1, 2] + j12 * rc[2, 2]
+        qw, qx, qy, qz = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
+        qn = max(np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), _F(1e-12))
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rotmat(qw / qn, qx / qn, qy / qn, qz / qn)
+        s0, s1, s2 = np.exp(log_scales[i, 0]), np.exp(log_scales[i, 1]), np.exp(log_scales[i, 2])
+        # U = T M with M = R diag(s): cov2d = U U^T
+        u00 = (t00 * r00 + t01 * r10 + t02 * r20) * s0
+        u01 = (t00 * r01 + t01 * r11 + t02 * r21) * s1
+        u02 = (t00 * r02 + t01 * r12 + t02 * r22) * s2
+        u10 = (t10 * r00 + t11 * r10 + t12 * r20) * s0
+        u11 = (t10 * r01 + t11 * r11 + t12 * r21) * s1
+        u12 = (t10 * r02 + t11 * r12 + t12 * r22) * s2
+        a = u00 * u00 + u01 * u01 + u02 * u02 + _F(0.3)
+        b = u00 * u10 + u01 * u11 + u02 * u12
+        c = u10 * u10 + u11 * u11 + u12 * u12 + _F(0.3)
+        mx = fx * px / zs + cx
+        my = fy * py / zs + cy
+        m2[i, 0], m2[i, 1] = mx, my
+        cov[i, 0], cov[i, 1], cov[i, 2] = a, b, c
+        z_out[i] = pz
+        det = a * c - b * b
+        mid = _F(0.5) * (a + c)
+        lam = mid + np.sqrt(max(mid * mid - det, _F(0.1)))
+        radius = np.ceil(_F(3.0) * np.sqrt(lam))
+        front = (pz > near_m) and (det > _F(0.0)) and abs(mx - cx) < _F(1.3) * _F(0.5) * _F(width) \
+            and abs(my - cy) < _F(1.3) * _F(0.5) * _F(height)
+        x0 = int(min(max(np.floor((mx - radius) / _F(TILE)), _F(0.0)), _F(tiles_x)))
+        x1 = int(min(max(np.floor((mx + radius) / _F(TILE)) + _F(1.0), _F(0.0)), _F(tiles_x)))
+        y0 = int(min(max(np.floor((my - radius) / _F(TILE)), _F(0.0)), _F(tiles_y)))
+        y1 = int(min(max(np.floor((my + radius) / _F(TILE)) + _F(1.0), _F(0.0)), _F(tiles_y)))
+        visible = front and x1 > x0 and y1 > y0
+        rect[i, 0], rect[i, 1], rect[i, 2], rect[i, 3] = x0, (x1 if visible else x0), y0, y1
+        radius_px[i] = int(radius) if visible else 0
+        if front and mx >= _F(0.0) and mx < _F(width) and my >= _F(0.0) and my < _F(height):
+            tile_id[i] = int(min(my, _F(height - 1)) // _F(TILE)) * tiles_x + int(min(mx, _F(width - 1)) // _F(TILE))
+        else:
+            tile_id[i] = -1
+
+
+@njit(parallel=True, cache=True)
+def _project_bwd(means, log_scales, quats, rc, tc, cam, width, height, g_m2, g_cov, g_z,
+                 g_means, g_log_scales, g_quats, g_pose):  # pragma: no cover - compiled
+    """The chain rule of ``_project_fwd`` per Gaussian; g_pose [N, 12] holds each Gaussian's share of
+    d/d(Rc row-major, tc), reduced afterwards in a fixed order."""
+    fx, fy = cam[0], cam[1]
+    lim_x = _F(1.3) * (_F(0.5) * _F(width) / fx)
+    lim_y = _F(1.3) * (_F(0.5) * _F(height) / fy)
+    for i in prange(means.shape[0]):
+        mw0, mw1, mw2 = means[i, 0], means[i, 1], means[i, 2]
+        px = rc[0, 0] * mw0 + rc[0, 1] * mw1 + rc[0, 2] * mw2 + tc[0]
+        py = rc[1, 0] * mw0 + rc[1, 1] * mw1 + rc[1, 2] * mw2 + tc[1]
+        pz = rc[2, 0] * mw0 + rc[2, 1] * mw1 + rc[2, 2] * mw2 + tc[2]
+        z_ok = abs(pz) >= _F(1e-6)
+        zs = pz if z_ok else _F(1e-6)
+        ux, uy = px / zs, py / zs
+        clamp_x = ux < -lim_x or ux > lim_x
+        clamp_y = uy < -lim_y or uy > lim_y
+        tx = min(max(ux, -lim_x), lim_x) * zs
+        ty = min(max(uy, -lim_y), lim_y) * zs
+        zs2 = zs * zs
+        j00, j02 = fx / zs, -fx * tx / zs2
+        j11, j12 = fy / zs, -fy * ty / zs2
+        t = np.empty((2, 3), np.float32)
+        for k in range(3):
+            t[0, k] = j00 * rc[0, k] + j02 * rc[2, k]
+            t[1, k] = j11 * rc[1, k] + j12 * rc[2, k]
+        qw, qx, qy, qz = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
+        qn = max(np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), _F(1e-12))
+        nw, nx, ny, nz = qw / qn, qx / qn, qy / qn, qz / qn
+        rg = np.empty((3, 3), np.float32)
+        rg[0, 0], rg[0, 1], rg[0, 2], rg[1, 0], rg[1, 1], rg[1, 2], rg[2, 0], rg[2, 1], rg[2, 2] = \
+            _rotmat(nw, nx, ny, nz)
+        sc = np.empty(3, np.float32)
+        for k in range(3):
+            sc[k] = np.exp(log_scales[i, k])
+        mm = np.empty((3, 3), np.float32)  # M = Rg diag(s)
+        for j in range(3):
+            for k in range(3):
+                mm[j, k] = rg[j, k] * sc[k]
+        sig = np.empty((3, 3), np.float32)  # Sigma = M M^T
+        for j in range(3):
+            for k in range(3):
+                sig[j, k] = mm[j, 0] * mm[k, 0] + mm[j, 1] * mm[k, 1] + mm[j, 2] * mm[k, 2]
+        # symmetric upstream gradient of the 2x2 screen covariance (b is read once, off the diagonal)
+        gs00, gs01, gs11 = g_cov[i, 0], _F(0.5) * g_cov[i, 1], g_cov[i, 2]
+        # dL/dT = 2 Gs T Sigma ; dL/dSigma = T^T Gs T ; dL/dM = 2 dL/dSigma M
+        ts = np.empty((2, 3), np.float32)  # T Sigma
+        for r in range(2):
+            for k in range(3):
+                ts[r, k] = t[r, 0] * sig[0, k] + t[r, 1] * sig[1, k] + t[r, 2] * sig[2, k]
+        gt = np.empty((2, 3), np.float32)
+        for k in range(3):
+            gt[0, k] = _F(2.0) * (gs00 * ts[0, k] + gs01 * ts[1, k])
+            gt[1, k] = _F(2.0) * (gs01 * ts[0, k] + gs11 * ts[1, k])
+        gsig = np.empty((3, 3), np.float32)
+        for j in range(3):
+            for k in range(3):
+                gsig[j, k] = (t[0, j] * (gs00 * t[0, k] + gs01 * t[1, k])
+                              + t[1, j] * (gs01 * t[0, k] + gs11 * t[1, k]))
+        grg = np.empty((3, 3), np.float32)
+        for k in range(3):
+            gsk = _F(0.0)
+            for j in range(3):
+                gm = _F(2.0) * (gsig[j, 0] * mm[0, k] + gsig[j, 1] * mm[1, k] + gsig[j, 2] * mm[2, k])
+                grg[j, k] = gm * sc[k]
+                gsk += gm * rg[j, k]
+            g_log_scales[i, k] = gsk * sc[k]
+        d = grg
+        gw = _F(2.0) * (-nz * d[0, 1] + ny * d[0, 2] + nz * d[1, 0] - nx * d[1, 2] - ny * d[2, 0] + nx * d[2, 1])
+        gx = _F(2.0) * (ny * d[0, 1] + nz * d[0, 2] + ny * d[1, 0] - _F(2.0) * nx * d[1, 1] - nw * d[1, 2]
+                        + nz * d[2, 0] + nw * d[2, 1] - _F(2.0) * nx * d[2, 2])
+        gy = _F(2.0) * (-_F(2.0) * ny * d[0, 0] + nx * d[0, 1] + nw * d[0, 2] + nx * d[1, 0] + nz * d[1, 2]
+                        - nw * d[2, 0] + nz * d[2, 1] - _F(2.0) * ny * d[2, 2])
+        gz = _F(2.0) * (-_F(2.0) * nz * d[0, 0] - nw * d[0, 1] + nx * d[0, 2] + nw * d[1, 0]
+                        - _F(2.0) * nz * d[1, 1] + ny * d[1, 2] + nx * d[2, 0] + ny * d[2, 1])
+        dot = nw * gw + nx * gx + ny * gy + nz * gz
+        g_quats[i, 0] = (gw - nw * dot) / qn
+        g_quats[i, 1] = (gx - nx * dot) / qn
+        g_quats[i, 2] = (gy - ny * dot) / qn
+        g_quats[i, 3] = (gz - nz * dot) / qn
+        # T = J Rc: dL/dJ = dL/dT Rc^T, dL/dRc += J^T dL/dT
+        gj00 = gt[0, 0] * rc[0, 0] + gt[0, 1] * rc[0, 1] + gt[0, 2] * rc[0, 2]
+        gj02 = gt[0, 0] * rc[2, 0] + gt[0, 1] * rc[2, 1] + gt[0, 2] * rc[2, 2]
+        gj11 = gt[1, 0] * rc[1, 0] + gt[1, 1] * rc[1, 1] + gt[1, 2] * rc[1, 2]
+        gj12 = gt[1, 0] * rc[2, 0] + gt[1, 1] * rc[2, 1] + gt[1, 2] * rc[2, 2]
+        for k in range(3):
+            g_pose[i, k] = j00 * gt[0, k]
+            g_pose[i, 3 + k] = j11 * gt[1, k]
+            g_pose[i, 6 + k] = j02 * gt[0, k] + j12 * gt[1, k]
+        # camera-space point: from J (through zs, tx, ty), the projected mean and z
+        gmx, gmy = g_m2[i, 0], g_m2[i, 1]
+        g_tx = gj02 * (-fx / zs2)
+        g_ty = gj12 * (-fy / zs2)
+        g_zs = (gj00 * (-fx / zs2) + gj02 * (_F(2.0) * fx * tx / (zs2 * zs)) + gj11 * (-fy / zs2)
+                + gj12 * (_F(2.0) * fy * ty / (zs2 * zs)) - (gmx * fx * px + gmy * fy * py) / zs2)
+        gpx = gmx * fx / zs
+        gpy = gmy * fy / zs
+        if clamp_x:  # tx = +-lim_x zs
+            g_zs += g_tx * (lim_x if ux > _F(0.0) else -lim_x)
+        else:
+            gpx += g_tx
+        if clamp_y:
+            g_zs += g_ty * (lim_y if uy > _F(0.0) else -lim_y)
+        else:
+            gpy += g_ty
+        gpz = g_z[i] + (g_zs if z_ok else _F(0.0))
+        for k in range(3):
+            g_means[i, k] = rc[0, k] * gpx + rc[1, k] * gpy + rc[2, k] * gpz
+        g_pose[i, 0] += gpx * mw0
+        g_pose[i, 1] += gpx * mw1
+        g_pose[i, 2] += gpx * mw2
+        g_pose[i, 3] += gpy * mw0
+        g_pose[i, 4] += gpy * mw1
+        g_pose[i, 5] += gpy * mw2
+        g_pose[i, 6] += gpz * mw0
+        g_pose[i, 7] += gpz * mw1
+        g_pose[i, 8] += gpz * mw2
+        g_pose[i, 9] = gpx
+        g_pose[i, 10] = gpy
+        g_pose[i, 11] = gpz
+
+
+@njit(cache=True)
+def _sum_rows(vals, out):  # pragma: no cover - compiled
+    """out[j] = sum_i vals[i, j] in row order (a fixed order, unlike a threaded reduction)."""
+    for i in range(vals.shape[0]):
+        for j in range(vals.shape[1]):
+            out[j] += vals[i, j]
+
+
+class _Project(torch.autograd.Function):
+    """World Gaussians -> screen (means2d [N, 2], cov [N, 3], z [N]) plus culling and tile rectangles."""
+
+    @staticmethod
+    def forward(ctx, means, log_scales, quats, w2c, cam, width, height, near_m, tiles_x, tiles_y):  # type: ignore[override]
+        _threads()
+        mw, ls, q = (t.detach().float().contiguous() for t in (means, log_scales, quats))
+        rc = w2c.detach()[:3, :3].float().contiguous()
+        tc = w2c.detach()[:3, 3].float().contiguous()
+        n = mw.shape[0]
+        m2 = torch.empty(n, 2)
+        cov = torch.empty(n, 3)
+        z = torch.empty(n)
+        rect = torch.empty(n, 4, dtype=torch.int32)
+        radius_px = torch.empty(n, dtype=torch.int64)
+        tile_id = torch.empty(n, dtype=torch.int64)
+        _project_fwd(mw.numpy(), ls.numpy(), q.numpy(), rc.numpy(), tc.numpy(), cam.numpy(), width, height,
+                     np.float32(near_m), tiles_x, tiles_y, m2.numpy(), cov.numpy(), z.numpy(), rect.numpy(),
+                     radius_px.numpy(), tile_id.numpy())
+        ctx.save_for_backward(mw, ls, q, rc, tc, cam)
+        ctx.dims = (width, height)
+        ctx.mark_non_differentiable(rect, radius_px, tile_id)
+        return m2, cov, z, rect, radius_px, tile_id
+
+    @staticmethod
+    def backward(ctx, g_m2, g_cov, g_z, *_):  # type: ignore[override]
+        _threads()
+        mw, ls, q, rc, tc, cam = ctx.saved_tensors
+        width, height = ctx.dims
+        n = mw.shape[0]
+        g_m2 = torch.zeros(n, 2) if g_m2 is None else g_m2.float().contiguous()
+        g_cov = torch.zeros(n, 3) if g_cov is None else g_cov.float().contiguous()
+        g_z = torch.zeros(n) if g_z is None else g_z.float().contiguous()
+        g_means, g_ls, g_q = torch.empty(n, 3), torch.empty(n, 3), torch.empty(n, 4)
+        g_pose_rows = torch.empty(n, 12)  # [N, 12]
+        _project_bwd(mw.numpy(), ls.numpy(), q.numpy(), rc.numpy(), tc.numpy(), cam.numpy(), width, height,
+                     g_m2.numpy(), g_cov.numpy(), g_z.numpy(), g_means.numpy(), g_ls.numpy(), g_q.numpy(),
+                     g_pose_rows.numpy())
+        g_pose = torch.zeros(12)
+        _sum_rows(g_pose_rows.numpy(), g_pose.numpy())
+        g_w2c = torch.zeros(4, 4)
+        g_w2c[:3, :3] = g_pose[:9].reshape(3, 3)
+        g_w2c[:3, 3] = g_pose[9:]
+        return g_means, g_ls, g_q, g_w2c, None, None, None, None, None, None
+
+
+def project(
+    means: torch.Tensor, log_scales: torch.Tensor, quats: torch.Tensor, w2c: torch.Tensor, K: torch.Tensor,
+    width: int, height: int, near_m: float, tiles_x: int, tiles_y: int,
+) -> tuple[torch.Tensor, ...]:
+    """means2d [N, 2], cov [N, 3] (a, b, c), z [N] (differentiable in means, log-scales, quats and the
+    pose w2c [4, 4]); rect [N, 4] int32, radius_px [N], tile_id [N] as ``raster._front`` defines them."""
+    cam = torch.stack([K[0, 0], K[1, 1], K[0, 2], K[1, 2]]).detach().float().cpu()
+    return _Project.apply(means, log_scales, quats, w2c, cam, width, height, near_m, tiles_x, tiles_y)
+
+
 def _threads() -> None:
     """Run the kernels on as many threads as torch uses (``threads=`` / ``torch.set_num_threads``)."""
     numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
