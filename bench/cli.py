@@ -1,13 +1,18 @@
 """The thin CLI over ``bench.run``: Hydra composes the config, known errors print one line.
 
-Strategy names are checked before Hydra composes, because Hydra's own answer to an unknown
-config option is a multi-line listing; ours is ``unknown strategy 'pockt'; did you mean ...``.
+Before Hydra takes over, ``precheck`` composes a single run's config itself and validates it
+(``bench.validate``), so a bad setting ends in one ``error:`` line and exit 2 before Hydra creates
+a run dir; Hydra's own answers (a multi-line listing for an unknown option, a four-line message for
+an unknown key) are turned into that line too. In a sweep each job is checked where it runs and a
+bad one is recorded ``failed`` (``hydra_plugins/pocketbench_sweeper``) while the sweep goes on.
 """
 
 from __future__ import annotations
 
 import logging
+import re
 import sys
+import tempfile
 from pathlib import Path
 
 import hydra
@@ -15,11 +20,19 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig
 
-from bench.errors import BenchError, StrategyError
+from bench.errors import BenchError, ConfigError, StrategyError
 from bench.registry import unknown_name_message
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+# Hydra finds plugins (our sweeper) only in the hydra_plugins namespace package. An editable
+# install made before that folder existed does not map it, so the checkout root joins the path
+# (last, so installed packages win).
+_ROOT = CONF_DIR.parent
+if (_ROOT / "hydra_plugins").is_dir() and str(_ROOT) not in sys.path:
+    sys.path.append(str(_ROOT))
 log = logging.getLogger("bench")
+EXIT_CONFIG = 2  # a known error: bad setting, bad input, failed run
+_GROUPS = ("dataset", "slam", "strategy", "experiment")
 
 
 def strategy_names() -> list[str]:
@@ -42,36 +55,168 @@ def check_overrides(argv: list[str]) -> None:
                 raise StrategyError(unknown_name_message("strategy", name, names))
 
 
+def split_args(argv: list[str]) -> tuple[bool, list[str], list[str]] | None:
+    """(multirun, job overrides, hydra overrides) of a command line; None when it holds other flags."""
+    multirun, job, hyd = False, [], []
+    for arg in argv:
+        if arg in ("-m", "--multirun"):
+            multirun = True
+        elif arg.startswith("-"):
+            return None  # --help, --cfg, --config-dir, ...: Hydra's business
+        else:
+            key = arg.lstrip("+~").split("=", 1)[0]
+            (hyd if key == "hydra" or key.startswith(("hydra.", "hydra/")) else job).append(arg)
+    return multirun, job, hyd
+
+
+def _value(args: list[str], key: str) -> str | None:
+    found = None
+    for arg in args:
+        k, sep, v = arg.lstrip("+").partition("=")
+        if sep and k == key:
+            found = v
+    return found
+
+
+def check_output_dir(path: str, key: str) -> None:
+    """One line unless ``path`` is, or can be created as, a writable directory."""
+    text = path.split("${", 1)[0]  # interpolations (${now:...}) are resolved later; check what is fixed
+    target = Path(text or ".").expanduser()
+    target = target if target.is_absolute() else Path.cwd() / target
+    probe = target
+    while not probe.exists():
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if probe.exists() and not probe.is_dir():
+        raise ConfigError(f"{key}: expected a directory, found the file {probe}")
+    try:  # a real attempt: permission bits say nothing for root, nor for a read-only mount
+        tempfile.TemporaryDirectory(dir=probe, prefix=".pocketbench-").cleanup()
+    except OSError as exc:
+        raise ConfigError(
+            f"{key}: expected a writable directory, found {probe} not writable ({exc.strerror or exc}; for {target})"
+        ) from None
+
+
+def check_output_dirs(multirun: bool, job: list[str], hyd: list[str]) -> None:
+    out_dir = _value(job, "out_dir")
+    if out_dir and out_dir != "null" and "," not in out_dir:
+        check_output_dir(out_dir, "out_dir")
+    key = "hydra.sweep.dir" if multirun else "hydra.run.dir"
+    check_output_dir(_value(hyd, key) or ("multirun" if multirun else "outputs"), key)
+
+
+def composition_error(exc: Exception, overrides: list[str]) -> str:
+    """Hydra's multi-line composition failure as our one line: key, expected, found."""
+    from omegaconf.errors import OmegaConfBaseException
+
+    cause = exc.__cause__ if isinstance(exc.__cause__, OmegaConfBaseException) else None
+    text = str(exc).strip()
+    missing = re.match(r"(?:In '[^']*': )?Could not (?:find|load) '([^'/]+)/([^']+)'", text)
+    if missing:
+        group, name = missing.groups()
+        names = sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))
+        return unknown_name_message(group, name, names)
+    if cause is not None:
+        key = getattr(cause, "full_key", None) or ""
+        first = str(cause).splitlines()[0]
+        if "not in struct" in first:
+            bad = next((o for o in overrides if o.lstrip("+~").split("=", 1)[0] == key), None)
+            parent = key.rsplit(".", 1)[0] if "." in key else ""
+            known = _known_keys(parent, [o for o in overrides if o is not bad])
+            return (f"unknown setting '{key}'; {parent or 'the config'} has: {known}; "
+                    f"add a new key with +{bad.lstrip('+~') if bad else key + '=VALUE'}")
+        conv = re.match(r"Value '(.*)' (?:of type '\w+' )?could not be converted to (\w+)", first)
+        if conv:
+            kind = {"Integer": "an integer", "Float": "a number", "Boolean": "true or false"}.get(conv[2], conv[2])
+            return f"{key}: expected {kind}, found {conv[1]!r}"
+        return f"{key}: {first[:1].lower()}{first[1:]}" if key else first
+    return text.splitlines()[0]
+
+
+def _known_keys(parent: str, overrides: list[str]) -> str:
+    try:
+        from omegaconf import OmegaConf
+
+        node = OmegaConf.select(compose(overrides), parent) if parent else compose(overrides)
+        return ", ".join(sorted(node)) if node else "(no keys)"
+    except Exception:  # the rest of the command line does not compose either: the name is enough
+        return "(unknown)"
+
+
+def compose(overrides: list[str]) -> DictConfig:
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        return hydra_compose(config_name="config", overrides=list(overrides))
+
+
+def precheck(argv: list[str]) -> None:
+    """Everything that can be refused before Hydra runs anything: one ``BenchError`` line."""
+    parts = split_args(argv)
+    if parts is None:
+        return
+    multirun, job, hyd = parts
+    check_output_dirs(multirun, job, hyd)
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    try:
+        if multirun:  # what Hydra composes before any job: the command line without its sweeps
+            parsed = OverridesParser.create().parse_overrides(job)
+            job = [o.input_line for o in parsed if not o.is_sweep_override()]
+        cfg = compose(job)
+    except (HydraException, OmegaConfBaseException) as exc:
+        raise ConfigError(composition_error(exc, job)) from None
+    if multirun:
+        return  # each job is validated where it runs (our sweeper, bench.run) and recorded if bad
+    from bench.validate import validate
+
+    validate(cfg)
+
+
 @hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name="config")
 def _hydra_main(cfg: DictConfig) -> None:
     from bench.run import run
+    from bench.signals import Interrupted
 
     hc = HydraConfig.get()
     multirun = hc.mode == RunMode.MULTIRUN
     try:
         result = run(cfg, out_dir=cfg.get("out_dir") or hc.runtime.output_dir)
+    except Interrupted as exc:  # recorded as interrupted; a stopped sweep stops too
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(exc.exit_code)
     except BenchError as exc:  # a config error before the run dir exists
         print(f"error: {exc}", file=sys.stderr)
         if multirun:
             return
-        sys.exit(2)
+        sys.exit(EXIT_CONFIG)
+    if result.status == "failed":
+        print(f"error: {result.error}", file=sys.stderr)
+        if not multirun:
+            sys.exit(EXIT_CONFIG)
+        return
     m = result.metrics
     word = "skipped (completed)" if result.skipped else result.status
     summary = ", ".join(
         f"{k}={m.get(k)}" for k in ("ate_rmse_m", "psnr_db", "ssim", "fps", "gaussians_peak", "peak_mem_mib") if k in m
     )
-    print(f"[{word}] {result.out_dir}" + (f": {summary}" if summary else ""))
-    if result.error:
-        print(f"error: {result.error}", file=sys.stderr)
-        if result.status == "failed" and not multirun:
-            sys.exit(2)
+    reason = f" ({result.error})" if result.error else ""
+    print(f"[{word}] {result.out_dir}" + (f": {summary}" if summary else "") + reason)
 
 
 def main() -> int:
     try:
         check_overrides(sys.argv[1:])
+        precheck(sys.argv[1:])
     except BenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_CONFIG
     _hydra_main()
     return 0
+
+
+__all__ = ["CONF_DIR", "check_overrides", "compose", "main", "precheck"]

@@ -44,6 +44,30 @@ def collect(device: torch.device) -> dict[str, Any]:
     }
 
 
+CODE_PATHS = ("bench", "strategies", "conf", "pyproject.toml")  # what a result depends on
+
+
+def code_version() -> dict[str, Any]:
+    """Commit, dirty flag and a hash of the uncommitted code diff (``None`` outside a git checkout).
+
+    The diff hash makes two different uncommitted edits on one commit two code versions.
+    """
+    commit = _git("rev-parse", "HEAD")
+    status = _git("status", "--porcelain", "--untracked-files=no", "--", *CODE_PATHS)
+    dirty = bool(status) if status is not None else None
+    diff = _git("diff", "HEAD", "--", *CODE_PATHS) if dirty else None
+    try:
+        package = version("pocketbench")
+    except PackageNotFoundError:
+        package = None
+    return {
+        "git_commit": commit,
+        "git_dirty": dirty,
+        "diff_sha": hashlib.sha256(diff.encode()).hexdigest()[:12] if diff else None,
+        "package": package,
+    }
+
+
 def config_hash(cfg: dict[str, Any]) -> str:
     """Stable hash of the result-affecting config (what 'the same run' means for resume)."""
     blob = json.dumps(cfg, sort_keys=True, default=str)

@@ -13,7 +13,6 @@ import dataclasses
 import json
 import logging
 import math
-import os
 import random
 import time
 from dataclasses import dataclass, field
@@ -25,12 +24,14 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from bench import provenance
-from bench.datasets import open_sequence
+from bench.datasets import canonical_seq, open_sequence
 from bench.errors import BenchError, ConfigError, TrackingLost
 from bench.measure import MemoryProbe, PhaseTimer
+from bench.record import record_failed, write_json
 from bench.slam.se3 import inverse
 from bench.slam.system import SlamConfig, System
 from bench.strategy import load_strategy
+from bench.validate import validate
 
 log = logging.getLogger(__name__)
 
@@ -92,26 +93,12 @@ def _seq_name(cfg: DictConfig) -> str | None:
         seq = cfg.dataset.get("seq")
     if seq is None:
         seq = cfg.dataset.get("default_seq", cfg.dataset.get("seed"))
-    return None if seq is None else str(seq)
+    return canonical_seq(str(cfg.dataset.name), seq)
 
 
 def _hashable(cfg: DictConfig) -> dict[str, Any]:
     plain = OmegaConf.to_container(cfg, resolve=True)
     return {k: v for k, v in plain.items() if k not in _NOT_HASHED}
-
-
-def _write_json(path: Path, obj: dict[str, Any]) -> None:
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(obj, indent=2, default=_json_default))
-    os.replace(tmp, path)
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(type(o))
 
 
 def _finite_or_none(x: float | None) -> float | None:
@@ -130,6 +117,31 @@ def completed(out_dir: Path, cfg_hash: str) -> dict[str, Any] | None:
     return None
 
 
+def make_out_dir(out: Path) -> None:
+    """Create the run dir; a path that cannot be a writable dir is one ``ConfigError`` line."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / ".write_test"
+        probe.touch()
+        probe.unlink()
+    except FileExistsError:
+        raise ConfigError(f"output dir: expected a directory at {out}, found a file in the way") from None
+    except NotADirectoryError:
+        raise ConfigError(f"output dir: expected a directory at {out}, found a file on its path") from None
+    except OSError as exc:
+        raise ConfigError(f"output dir: expected a writable directory at {out}, found: {exc.strerror or exc}") from None
+
+
+def _keys_best_effort(cfg: DictConfig) -> dict[str, Any]:
+    """Run keys of a config that failed validation: whatever of them is readable."""
+    try:
+        return run_keys(cfg)
+    except Exception:  # the bad value is one of the keys (seed=abc): record the rest as given
+        strategy = cfg.get("strategy")
+        return {"strategy": strategy.get("name") if strategy else "none", "dataset": cfg.dataset.get("name"),
+                "seq": None if cfg.get("seq") is None else str(cfg.get("seq")), "seed": None, "keep_ratio": None}
+
+
 def slam_config(cfg: DictConfig) -> SlamConfig:
     raw = OmegaConf.to_container(cfg.slam, resolve=True)
     names = {f.name for f in dataclasses.fields(SlamConfig)}
@@ -143,7 +155,15 @@ def slam_config(cfg: DictConfig) -> SlamConfig:
 def run(cfg: DictConfig, out_dir: str | Path | None = None) -> RunResult:
     """Run one (strategy, dataset, seq, seed) combination and write its run directory."""
     out = Path(out_dir or cfg.get("out_dir") or ".").resolve()
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        validate(cfg)
+    except ConfigError as exc:  # in a sweep the job is recorded; a single run was refused by the CLI already
+        make_out_dir(out)
+        record_failed(out, str(exc), _keys_best_effort(cfg))
+        return RunResult("failed", out, {}, str(exc))
+    make_out_dir(out)
+    if cfg.get("threads"):
+        torch.set_num_threads(int(cfg.threads))  # before provenance records the thread count
     cfg_hash = provenance.config_hash(_hashable(cfg))
     keys = {**run_keys(cfg), "config_hash": cfg_hash}
     if cfg.get("resume", True):
@@ -153,7 +173,7 @@ def run(cfg: DictConfig, out_dir: str | Path | None = None) -> RunResult:
             return RunResult(stored["status"], out, stored.get("metrics", {}), stored.get("error"), skipped=True)
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     record: dict[str, Any] = {"status": "running", "error": None, "run": keys, "metrics": {}, "provenance": {}}
-    _write_json(out / "metrics.json", record)
+    write_json(out / "metrics.json", record)
     try:
         device = resolve_device(str(cfg.device))
         record["provenance"] = provenance.collect(device)
@@ -162,10 +182,10 @@ def run(cfg: DictConfig, out_dir: str | Path | None = None) -> RunResult:
         status, error, metrics = "failed", str(exc), record["metrics"]
     except Exception as exc:  # unexpected: record it so the sweep goes on, then re-raise for the traceback
         record.update(status="failed", error=f"{type(exc).__name__}: {exc}".splitlines()[0])
-        _write_json(out / "metrics.json", record)
+        write_json(out / "metrics.json", record)
         raise
     record.update(status=status, error=error, metrics=metrics)
-    _write_json(out / "metrics.json", record)
+    write_json(out / "metrics.json", record)
     return RunResult(status, out, metrics, error)
 
 
@@ -174,8 +194,6 @@ def _execute(cfg: DictConfig, out: Path, device: torch.device, record: dict[str,
     random.seed(seed)
     np.random.seed(seed)
     torch.manual_seed(seed)
-    if cfg.get("threads"):
-        torch.set_num_threads(int(cfg.threads))
     strategy_cfg = cfg.get("strategy")
     name = strategy_cfg.name if strategy_cfg else "none"
     params = (

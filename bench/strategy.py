@@ -129,6 +129,9 @@ def load_strategy(name: str, params: dict[str, Any] | None = None) -> Strategy:
             f"strategy '{name}' has no parameter {', '.join(repr(u) for u in unknown)}; "
             f"expected one of: {', '.join(sorted(fields)) or '(none)'}"
         )
+    from bench.validate import check_fields
+
+    check_fields("strategy.params", cls, params)  # types from the annotations, ranges below
     try:
         return cls(**params)
     except (TypeError, ValueError) as exc:

@@ -16,3 +16,20 @@ def shared() -> Path:
     if not (SHARED / "data").is_dir():
         pytest.skip(f"real data not found at {SHARED}")
     return SHARED
+
+
+@pytest.fixture
+def euroc_copy(shared: Path, tmp_path: Path) -> Path:
+    """A writable EuRoC root in tmp_path: V1_01_micro with images linked and text files copied."""
+    import shutil
+
+    src = shared / "data" / "euroc" / "V1_01_micro" / "mav0"
+    dst = tmp_path / "euroc" / "V1_01_micro" / "mav0"
+    dst.mkdir(parents=True)
+    (dst / "state_groundtruth_estimate0").symlink_to(src / "state_groundtruth_estimate0")
+    for cam in ("cam0", "cam1"):
+        (dst / cam).mkdir()
+        (dst / cam / "data").symlink_to(src / cam / "data")
+        for name in ("data.csv", "sensor.yaml"):
+            shutil.copy(src / cam / name, dst / cam)
+    return tmp_path / "euroc"

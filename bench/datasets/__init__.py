@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Mapping
 from typing import Any
 
@@ -11,7 +12,7 @@ from bench.errors import DatasetError
 
 GROUP = "pocketbench.datasets"
 
-__all__ = ["GROUP", "Frame", "Sequence", "open_sequence"]
+__all__ = ["GROUP", "Frame", "Sequence", "canonical_seq", "open_sequence"]
 
 
 def open_sequence(name: str, cfg: Mapping[str, Any]) -> Sequence:
@@ -23,3 +24,21 @@ def open_sequence(name: str, cfg: Mapping[str, Any]) -> Sequence:
             f"dataset plugin '{name}' must return a bench.datasets.Sequence, got {type(seq).__name__}"
         )
     return seq
+
+
+def canonical_seq(name: str, seq: Any) -> str | None:
+    """The one name sequence ``seq`` of dataset ``name`` is recorded and reported under.
+
+    Why: ``seq=6`` and ``seq=06`` (or EuRoC's ``V101`` and ``V1_01_easy``) are one sequence; recorded
+    as typed, a report would show two columns and count the sequence twice in its average. A
+    plugin defines ``canonical_seq(seq) -> str`` beside its factory; without one the name is kept.
+    """
+    if seq is None or str(seq).strip() == "":
+        return None
+    try:
+        factory = registry.load(GROUP, "dataset", name, DatasetError)
+    except DatasetError:
+        return str(seq).strip()
+    module = sys.modules.get(getattr(factory, "__module__", ""))
+    fn = getattr(module, "canonical_seq", None)
+    return str(fn(seq)) if callable(fn) else str(seq).strip()

@@ -10,6 +10,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import torch
 
@@ -32,6 +33,9 @@ class Sequence(ABC):
     K: torch.Tensor  # [3, 3] float32 pinhole intrinsics at the delivered resolution
     height: int
     width: int
+    # Files the frames are read from (calibration, lists, ground truth, images): the resume key
+    # fingerprints them, so a run over a fixed file is redone. Empty for generated data.
+    source_files: tuple[Path, ...] = ()
 
     @abstractmethod
     def __len__(self) -> int: ...

@@ -52,6 +52,11 @@ def resolve_seq(seq: str) -> str:
     return ALIASES.get(key, seq)
 
 
+def canonical_seq(seq: Any) -> str:
+    """The one name a sequence is recorded under: 'V101', 'v1_01', 'V1_01_easy' -> 'V1_01_easy'."""
+    return resolve_seq(str(seq).strip())
+
+
 def read_sensor_yaml(path: Path) -> dict[str, Any]:
     """cam sensor.yaml -> {K [3,3], dist [4], T_BS [4,4], size (w, h)}; the %YAML header is stripped."""
     if not path.is_file():
@@ -103,7 +108,22 @@ def read_sensor_yaml(path: Path) -> dict[str, Any]:
     if not np.allclose(T_BS[:3, :3] @ T_BS[:3, :3].T, np.eye(3), atol=1e-4):
         raise DatasetError(f"euroc sensor.yaml {path} key 'T_BS': expected a rigid transform, found a non-rotation")
     fu, fv, cu, cv = numbers("intrinsics", 4)
-    w, h = numbers("resolution", 2).astype(int)
+    if not (fu > 0 and fv > 0):
+        raise DatasetError(
+            f"euroc sensor.yaml {path} key 'intrinsics': expected positive focal lengths fu, fv, found {fu:g}, {fv:g}"
+        )
+    res = numbers("resolution", 2)
+    if not (res > 0).all() or not np.allclose(res, np.round(res)):
+        raise DatasetError(
+            f"euroc sensor.yaml {path} key 'resolution': expected positive integer width and height, "
+            f"found {res.tolist()}"
+        )
+    w, h = res.astype(int)
+    if not (0 <= cu < w and 0 <= cv < h):
+        raise DatasetError(
+            f"euroc sensor.yaml {path} key 'intrinsics': expected the principal point inside the {w}x{h} image, "
+            f"found cu={cu:g} cv={cv:g}"
+        )
     return {
         "K": np.array([[fu, 0.0, cu], [0.0, fv, cv], [0.0, 0.0, 1.0]]),
         "dist": numbers("distortion_coefficients", 4),
@@ -257,7 +277,7 @@ def open_sequence(cfg: Mapping[str, Any]) -> Sequence:
     def rectify(img: np.ndarray, side: int) -> np.ndarray:
         return cv2.remap(img, maps[side][0], maps[side][1], cv2.INTER_LINEAR)
 
-    return StereoSequence(
+    sequence = StereoSequence(
         dataset=DATASET,
         name=f"euroc/{folder}",
         left_paths=[left_paths[i] for i in idx],
@@ -288,3 +308,7 @@ def open_sequence(cfg: Mapping[str, Any]) -> Sequence:
             }
         },
     )
+    texts = [mav / c / n for c in ("cam0", "cam1") for n in ("sensor.yaml", "data.csv")]
+    texts += [gt_path] if gt is not None else []
+    sequence.source_files = (*texts, *sequence.left_paths, *sequence.right_paths)
+    return sequence

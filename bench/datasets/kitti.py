@@ -81,7 +81,18 @@ def projection(calib: dict[str, tuple[int, np.ndarray]], key: str, path: Path, w
             f"kitti calib {path} line {lineno}: expected positive focal lengths in {key}, found "
             f"fx={P[0, 0]:g} fy={P[1, 1]:g}"
         )
+    det = float(np.linalg.det(P[:, :3]))
+    if not abs(det) > 1e-9 * abs(P[0, 0] * P[1, 1]):
+        raise DatasetError(
+            f"kitti calib {path} line {lineno}: expected an invertible left 3x3 block in {key} (K R), "
+            f"found a singular one (det {det:g})"
+        )
     return P
+
+
+def canonical_seq(seq: Any) -> str:
+    """The one name a sequence is recorded under: '6' / 6 / '06' -> '06'."""
+    return normalize_seq(seq)
 
 
 def camera_offset_m(P: np.ndarray) -> np.ndarray:
@@ -233,7 +244,7 @@ def open_sequence(cfg: Mapping[str, Any]) -> Sequence:
     height, width = first_img.shape[:2]
     downscale = io.get_int(cfg, "downscale", 1, DATASET, minimum=1) or 1
     idx = io.select(n, cfg, DATASET, LOG)
-    return StereoSequence(
+    sequence = StereoSequence(
         dataset=DATASET,
         name=f"kitti/{seq}",
         left_paths=[left_paths[i] for i in idx],
@@ -249,3 +260,6 @@ def open_sequence(cfg: Mapping[str, Any]) -> Sequence:
         max_depth_m=io.get_float(cfg, "max_depth_m", 50.0, DATASET),
         cache=cache_from_cfg(cfg, DATASET),
     )
+    texts = [calib_path, times_path] + ([poses_path] if gt is not None else [])
+    sequence.source_files = (*texts, *sequence.left_paths, *sequence.right_paths)
+    return sequence

@@ -277,6 +277,12 @@ def open_sequence(cfg: Mapping[str, Any]) -> SyntheticSequence:
     )
 
 
+def canonical_seq(seq: Any) -> str:
+    """The one name a sequence is recorded under: the scene seed as a plain integer ('007' -> '7')."""
+    text = str(seq).strip()
+    return str(int(text)) if text.lstrip("-").isdigit() else text
+
+
 def _seed_from_seq(seq: str) -> int:
     try:
         return int(seq)

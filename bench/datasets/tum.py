@@ -23,6 +23,7 @@ import torch
 from bench.datasets import _realio as io
 from bench.datasets.base import Frame, Sequence
 from bench.errors import ConfigError, DatasetError
+from bench.stamps import order_problem
 
 LOG = logging.getLogger("bench.datasets.tum")
 DATASET = "tum"
@@ -40,6 +41,11 @@ def resolve_seq(seq: str) -> str:
     """'fr1_desk', 'fr1/desk', 'freiburg1_desk' -> 'rgbd_dataset_freiburg1_desk'; others unchanged."""
     m = re.fullmatch(r"(?:rgbd_dataset_)?(?:fr|freiburg)([123])[_/](.+)", seq)
     return f"rgbd_dataset_freiburg{m.group(1)}_{m.group(2)}" if m else seq
+
+
+def canonical_seq(seq: Any) -> str:
+    """The one name a sequence is recorded under: 'fr1_desk', 'freiburg1_desk' -> 'rgbd_dataset_freiburg1_desk'."""
+    return resolve_seq(str(seq).strip())
 
 
 def camera_key(folder: str) -> str:
@@ -80,6 +86,9 @@ def read_list(
         linenos.append(lineno)
     arr = np.array(stamps, dtype=np.float64)
     io.check_finite_rows(arr[:, None], path, DATASET, what, line_numbers=linenos)
+    problem = order_problem(arr, linenos)
+    if problem:
+        raise DatasetError(f"tum {what} {path} {problem}")
     return arr, rest, linenos
 
 
@@ -226,7 +235,7 @@ def open_sequence(cfg: Mapping[str, Any]) -> Sequence:
     first = io.read_image(rgb_paths[0], DATASET, "color")
     height, width = first.shape[:2]
     idx = io.select(len(rgb_paths), cfg, DATASET, LOG)
-    return TumSequence(
+    sequence = TumSequence(
         name=f"tum/{folder}",
         rgb_paths=[rgb_paths[i] for i in idx],
         depth_paths=[depth_paths[i] for i in idx],
@@ -238,3 +247,6 @@ def open_sequence(cfg: Mapping[str, Any]) -> Sequence:
         depth_scale=io.get_float(cfg, "depth_scale", 5000.0, DATASET, allow_none=False),
         max_depth_m=io.get_float(cfg, "max_depth_m", 10.0, DATASET),
     )
+    texts = [seq_dir / "rgb.txt", seq_dir / "depth.txt"] + ([gt_path] if gt is not None else [])
+    sequence.source_files = (*texts, *sequence.rgb_paths, *sequence.depth_paths)
+    return sequence

@@ -22,6 +22,7 @@ from evo.core.trajectory import PoseTrajectory3D
 from evo.core.transformations import quaternion_from_matrix
 
 from bench.errors import MetricError
+from bench.stamps import order_problem
 
 ALIGNMENTS = ("se3", "sim3", "none")
 MIN_POSES = 3  # Umeyama needs 3 non-collinear points; fewer is not a trajectory error
@@ -78,14 +79,21 @@ class Trajectory:
         )
 
 
-def read_tum(path: str | Path) -> Trajectory:
-    """Read a TUM trajectory; comments (``#``) and blank lines are skipped, commas accepted."""
+def read_tum(path: str | Path, allow_duplicates: bool = False) -> Trajectory:
+    """Read a TUM trajectory; comments (``#``) and blank lines are skipped, commas accepted.
+
+    Timestamps must strictly increase (evo's ``check()`` demands it too): a duplicate or an
+    out-of-order row is an error naming its line. ``allow_duplicates`` keeps repeated stamps (still
+    in order) for published files that hold them, e.g. the TUM fr2/desk ground truth (line 10863),
+    so a figure computed from them can be reproduced.
+    """
     path = Path(path)
     try:
         text = path.read_text()
     except OSError as exc:
         raise MetricError(f"cannot read trajectory {path}: {exc.strerror or exc}") from None
     rows: list[list[float]] = []
+    linenos: list[int] = []
     for lineno, raw in enumerate(text.splitlines(), start=1):
         line = raw.strip()
         if not line or line.startswith("#"):
@@ -104,9 +112,13 @@ def read_tum(path: str | Path) -> Trajectory:
         if math.hypot(*values[4:8]) < 1e-12:
             raise MetricError(f"{path}:{lineno}: expected a unit quaternion, found a zero quaternion")
         rows.append(values)
+        linenos.append(lineno)
     if not rows:
         raise MetricError(f"{path}: expected TUM poses 'timestamp tx ty tz qx qy qz qw', found none")
     data = np.asarray(rows, dtype=np.float64)  # [N, 8]
+    problem = order_problem(data[:, 0], linenos, allow_equal=allow_duplicates)
+    if problem:
+        raise MetricError(f"{path}:{problem.removeprefix('line ')}")
     quat_wxyz = data[:, [7, 4, 5, 6]]  # file order is x y z w
     return Trajectory(data[:, 0], data[:, 1:4], quat_wxyz)
 

@@ -16,10 +16,13 @@ from typing import Any
 
 import pandas as pd
 
+from bench.datasets import canonical_seq
 from bench.errors import BenchError
+from bench.record import is_leftover
 from bench.report.names import method_name
 
-STATUSES: tuple[str, ...] = ("ok", "lost", "failed", "running")
+STATUSES: tuple[str, ...] = ("ok", "lost", "failed", "interrupted", "running")
+UNFINISHED: tuple[str, ...] = ("running", "interrupted")  # left out of tables and plots
 RUN_KEYS: tuple[str, ...] = ("strategy", "dataset", "seq", "seed", "keep_ratio", "config_hash")
 REQUIRED_RUN_KEYS: tuple[str, ...] = ("strategy", "dataset")
 DEFAULT_SEQ = "default"  # the harness writes seq null when a dataset ran its default sequence
@@ -103,6 +106,8 @@ def read_run(run_dir: Path) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise ReportError(f"expected a json object in {path}, found {type(data).__name__}")
     status = data.get("status")
+    if status == "running" and is_leftover(data):
+        status = "interrupted"  # its process is gone: killed (SIGKILL, power) before it could say so
     if status not in STATUSES:
         raise ReportError(f"expected status one of {'|'.join(STATUSES)} in {path}, found {status!r}")
     run = data.get("run")
@@ -129,7 +134,7 @@ def read_run(run_dir: Path) -> dict[str, Any]:
         "strategy": str(run["strategy"]),
         "method": method_name(str(run["strategy"])),
         "dataset": str(run["dataset"]),
-        "seq": DEFAULT_SEQ if run.get("seq") in (None, "") else str(run["seq"]),
+        "seq": DEFAULT_SEQ if run.get("seq") in (None, "") else canonical_seq(str(run["dataset"]), run["seq"]),
         "seed": seed,
         "keep_ratio": keep_ratio,
         "config_hash": run.get("config_hash"),
@@ -188,9 +193,11 @@ def collect(roots: Iterable[Path]) -> Collection:
         warnings.append(
             f"duplicate run {dict(zip(keys, key, strict=True))} in {', '.join(group['path'])}: all are counted as seeds"
         )
-    running = runs[runs["status"] == "running"]
-    if len(running):
-        warnings.append(f"{len(running)} run(s) still running, left out of tables and plots")
+    for status in UNFINISHED:
+        n = int((runs["status"] == status).sum())
+        if n:
+            what = "still running" if status == "running" else "interrupted"
+            warnings.append(f"{n} run(s) {what}, left out of tables and plots")
     return Collection(runs=runs, skipped=skipped, warnings=warnings)
 
 

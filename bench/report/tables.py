@@ -13,7 +13,7 @@ from typing import Literal
 
 import pandas as pd
 
-from bench.report.collect import is_missing
+from bench.report.collect import UNFINISHED, is_missing
 from bench.report.names import dataset_name, file_token, method_name, paper_sequence, sequence_sort_key, strategy_rank
 from bench.report.paper import LOST, PAPER_METRIC, PAPER_STRATEGY, PAPER_UNIT, paper_values
 
@@ -427,8 +427,8 @@ def performance_table(
 def build_tables(
     runs: pd.DataFrame, paper: pd.DataFrame | None = None, baseline: str = "none"
 ) -> tuple[list[Table], list[str]]:
-    """Accuracy and performance tables per dataset from finished runs (``running`` ones left out)."""
-    done = runs[runs["status"] != "running"]
+    """Accuracy and performance tables per dataset from finished runs (``running``/``interrupted`` left out)."""
+    done = runs[~runs["status"].isin(UNFINISHED)]
     tables: list[Table] = []
     warnings: list[str] = []
     for dataset in sorted(set(done["dataset"])):

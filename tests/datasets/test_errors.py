@@ -140,19 +140,6 @@ def test_corrupt_png(kcfg, kitti_copy):
     _one_line(exc, "image unreadable", str(bad), "found 48 bytes")
 
 
-def _euroc_copy(shared: Path, tmp_path: Path) -> Path:
-    src = shared / "data" / "euroc" / "V1_01_micro" / "mav0"
-    dst = tmp_path / "euroc" / "V1_01_micro" / "mav0"
-    dst.mkdir(parents=True)
-    (dst / "state_groundtruth_estimate0").symlink_to(src / "state_groundtruth_estimate0")
-    for cam in ("cam0", "cam1"):
-        (dst / cam).mkdir()
-        (dst / cam / "data").symlink_to(src / cam / "data")
-        for name in ("data.csv", "sensor.yaml"):
-            shutil.copy(src / cam / name, dst / cam)
-    return tmp_path / "euroc"
-
-
 def test_euroc_missing_sequence(euroc_cfg, shared):
     with pytest.raises(DatasetError) as exc:
         euroc.open_sequence({**euroc_cfg, "seq": "MH01"})
@@ -174,8 +161,8 @@ def test_euroc_missing_sequence(euroc_cfg, shared):
         ("rows: 4", "rows: [4", ["expected valid yaml"]),
     ],
 )
-def test_bad_sensor_yaml(euroc_cfg, shared, tmp_path, old, new, parts):
-    root = _euroc_copy(shared, tmp_path)
+def test_bad_sensor_yaml(euroc_cfg, euroc_copy, old, new, parts):
+    root = euroc_copy
     sensor = root / "V1_01_micro" / "mav0" / "cam0" / "sensor.yaml"
     text = sensor.read_text()
     assert old in text
@@ -185,8 +172,8 @@ def test_bad_sensor_yaml(euroc_cfg, shared, tmp_path, old, new, parts):
     _one_line(exc, f"euroc sensor.yaml {sensor}", *parts)
 
 
-def test_euroc_csv_and_images_disagree(euroc_cfg, shared, tmp_path):
-    root = _euroc_copy(shared, tmp_path)
+def test_euroc_csv_and_images_disagree(euroc_cfg, euroc_copy):
+    root = euroc_copy
     csv = root / "V1_01_micro" / "mav0" / "cam1" / "data.csv"
     csv.write_text("".join(csv.read_text().splitlines(keepends=True)[:-3]))
     with pytest.raises(DatasetError) as exc:

@@ -1,0 +1,62 @@
+"""SIGINT and SIGTERM as an exception the run loop can catch, so a stopped run keeps its results.
+
+Why not KeyboardInterrupt alone: SIGTERM (a cluster's time limit, ``kill``) would end the process
+without unwinding, leaving ``metrics.json`` at ``running``. Both signals raise ``Interrupted``,
+which is not an ``Exception``, so no ``except Exception`` on the way swallows it. A second signal
+while the partial record is being written is ignored, so the record is not cut in half.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from types import FrameType
+
+HANDLED = (signal.SIGINT, signal.SIGTERM)
+
+
+class Interrupted(BaseException):
+    """The run was stopped by a signal; ``exit_code`` follows the shell's 128 + signal number."""
+
+    def __init__(self, signum: int, message: str | None = None) -> None:
+        self.signum = signum
+        super().__init__(message or f"interrupted by {signal.Signals(signum).name}")
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + self.signum
+
+
+@contextmanager
+def raise_on_signals() -> Iterator[None]:
+    """Within the block, SIGINT/SIGTERM raise ``Interrupted`` (main thread only; elsewhere a no-op)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        raise Interrupted(signum)
+
+    previous = {s: signal.signal(s, handler) for s in HANDLED}
+    try:
+        yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
+@contextmanager
+def deferred_signals() -> Iterator[list[int]]:
+    """Within the block, SIGINT/SIGTERM are noted, not acted on (writing the final record)."""
+    received: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield received
+        return
+    previous = {s: signal.signal(s, lambda signum, frame: received.append(signum)) for s in HANDLED}
+    try:
+        yield received
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)

@@ -1,0 +1,100 @@
+"""Hydra's basic sweeper, except that a job whose config cannot be composed is recorded, not fatal.
+
+Why: Hydra composes every job of a batch before launching any and aborts the whole sweep on the
+first that fails (with typed configs, ``seed=abc`` fails at composition). Here such a job gets
+its run dir with a ``failed`` metrics.json holding the one-line reason, prints that line, and
+the other jobs run. Works with any launcher (basic, joblib, submitit): only the batch handed to
+the launcher changes.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from hydra._internal.config_loader_impl import get_overrides_dirname
+from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.errors import HydraException
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from bench.record import record_failed
+
+log = logging.getLogger(__name__)
+_OVERRIDE_DIRNAME = "${hydra:job.override_dirname}"
+
+
+class BenchSweeper(BasicSweeper):
+    """``hydra/sweeper=bench`` (the default in conf/config.yaml)."""
+
+    def sweep(self, arguments: list[str]) -> Any:
+        launcher = self.launcher
+        sweeper = self
+
+        class _Filtered:
+            """The launcher, handed only the jobs that compose."""
+
+            def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> Any:
+                good = [list(o) for i, o in enumerate(job_overrides) if sweeper._composes(o, initial_job_idx + i)]
+                return launcher.launch(good, initial_job_idx=initial_job_idx) if good else []
+
+            def __getattr__(self, name: str) -> Any:
+                return getattr(launcher, name)
+
+        self.launcher = _Filtered()  # type: ignore[assignment]
+        try:
+            return super().sweep(arguments)
+        finally:
+            self.launcher = launcher
+
+    def validate_batch_is_legal(self, batch: Sequence[Sequence[str]]) -> None:
+        """Composition failures are handled per job in ``_composes``; nothing aborts the sweep."""
+
+    def _composes(self, overrides: Sequence[str], job_idx: int) -> bool:
+        from bench.cli import composition_error
+
+        try:
+            self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
+            return True
+        except (HydraException, OmegaConfBaseException) as exc:
+            message = composition_error(exc, list(overrides))
+        log.info("\t#%d : %s", job_idx, " ".join(overrides))
+        out = self._job_dir(overrides, job_idx)
+        record_failed(out, message, _run_keys(self.config, overrides))
+        print(f"error: {message}", file=sys.stderr)
+        return False
+
+    def _job_dir(self, overrides: Sequence[str], job_idx: int) -> Path:
+        hc = self.config.hydra
+        sweep_dir = Path(str(hc.sweep.dir))
+        subdir = OmegaConf.to_container(hc.sweep, resolve=False).get("subdir")
+        if subdir != _OVERRIDE_DIRNAME:
+            return sweep_dir / str(job_idx)
+        parsed = OverridesParser.create().parse_overrides(list(overrides))
+        od = hc.job.config.override_dirname
+        return sweep_dir / get_overrides_dirname(parsed, list(od.exclude_keys), od.item_sep, od.kv_sep)
+
+
+def _run_keys(config: Any, overrides: Sequence[str]) -> dict[str, Any]:
+    """Best-effort run keys of a job that never composed: its overrides over the sweep's base config."""
+    given = {}
+    for o in overrides:
+        key, _, value = o.lstrip("+~").partition("=")
+        given[key] = value
+    base_strategy = OmegaConf.select(config, "strategy.name", default=None)
+    seed = given.get("seed", OmegaConf.select(config, "seed", default=None))
+    try:
+        seed = int(seed) if seed is not None else None
+    except ValueError:
+        seed = None
+    return {
+        "strategy": given.get("strategy") or base_strategy or "none",
+        "dataset": given.get("dataset") or OmegaConf.select(config, "dataset.name", default="unknown"),
+        "seq": given.get("seq"),
+        "seed": seed,
+        "keep_ratio": None,
+    }
