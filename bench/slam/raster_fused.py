@@ -25,11 +25,17 @@ Design choices, and why:
 from __future__ import annotations
 
 import math
+import os
 
-import numba
-import numpy as np
-import torch
-from numba import njit, prange
+# numba's OpenMP layer leaves its workers spinning between kernels, where they take the cores from
+# torch's own OpenMP pool and slow every torch op around the kernels; the work-queue layer parks
+# them. numba re-reads its configuration from the environment, so the choice is made there.
+os.environ.setdefault("NUMBA_THREADING_LAYER", "workqueue")
+
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from numba import njit, prange  # noqa: E402
 
 TILE = 16
 _F = np.float32
@@ -493,7 +499,7 @@ class _Project(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, means, log_scales, quats, w2c, cam, width, height, near_m, tiles_x, tiles_y):  # type: ignore[override]
-        _threads()
+        _threads(int(means.shape[0]) // 8)  # a projection costs about an eighth of a pair's compositing
         mw, ls, q = (t.detach().float().contiguous() for t in (means, log_scales, quats))
         rc = w2c.detach()[:3, :3].float().contiguous()
         tc = w2c.detach()[:3, 3].float().contiguous()
@@ -514,8 +520,8 @@ class _Project(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, g_m2, g_cov, g_z, *_):  # type: ignore[override]
-        _threads()
         mw, ls, q, rc, tc, cam = ctx.saved_tensors
+        _threads(int(mw.shape[0]) // 8)
         width, height = ctx.dims
         n = mw.shape[0]
         g_m2 = torch.zeros(n, 2) if g_m2 is None else g_m2.float().contiguous()
@@ -544,9 +550,16 @@ def project(
     return _Project.apply(means, log_scales, quats, w2c, cam, width, height, near_m, tiles_x, tiles_y)
 
 
-def _threads() -> None:
-    """Run the kernels on as many threads as torch uses (``threads=`` / ``torch.set_num_threads``)."""
-    numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
+# below this many work items a kernel runs on one thread: a parallel region ends at a barrier, and
+# on a loaded machine (a sweep running jobs side by side) waiting there for a descheduled worker
+# costs more than the work itself
+PARALLEL_MIN_ITEMS = 32_768
+
+
+def _threads(n_items: int) -> None:
+    """Run the next kernel on as many threads as torch uses (``threads=``), or one for small work."""
+    n = torch.get_num_threads() if n_items >= PARALLEL_MIN_ITEMS else 1
+    numba.set_num_threads(max(1, min(n, numba.config.NUMBA_NUM_THREADS)))
 
 
 def bin_pairs(
@@ -566,7 +579,7 @@ class _Composite(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, means2d, conic, opac, feat, gid, tile_start, width, height, tiles_x, stats):  # type: ignore[override]
-        _threads()
+        _threads(int(gid.shape[0]))
         m2 = means2d.detach().contiguous()
         co = conic.detach().contiguous()
         op = opac.detach().contiguous()
@@ -597,8 +610,8 @@ class _Composite(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, g_acc, g_t, *_):  # type: ignore[override]
-        _threads()
         m2, co, op, ft, gid, tile_start, t_final, last = ctx.saved_tensors
+        _threads(int(gid.shape[0]))
         width, height, tiles_x = ctx.dims
         hw = width * height
         g_acc = torch.zeros(hw, N_FEAT) if g_acc is None else g_acc.contiguous().to(torch.float32)
