@@ -30,7 +30,7 @@ from bench.measure import MemoryProbe, PhaseTimer
 from bench.record import record_failed, write_json
 from bench.slam.se3 import inverse
 from bench.slam.system import SlamConfig, System
-from bench.strategy import load_strategy
+from bench.strategy import PruneConfig, load_strategy
 from bench.validate import validate
 
 log = logging.getLogger(__name__)
@@ -42,6 +42,7 @@ KEYFRAME_COLUMNS = [
     "n_masked",
     "n_added",
     "n_pruned",
+    "n_candidates",
     "state_bytes",
     "state_mib",
     "cpu_rss_peak_mib",
@@ -84,6 +85,7 @@ def run_keys(cfg: DictConfig) -> dict[str, Any]:
         "seq": _seq_name(cfg),
         "seed": int(cfg.seed),
         "keep_ratio": float(cfg.prune.keep_ratio) if strategy else None,  # meaningless without pruning
+        "slam_preset": str(cfg.slam.get("name", "default")),  # runs of different presets never pool
     }
 
 
@@ -142,14 +144,22 @@ def _keys_best_effort(cfg: DictConfig) -> dict[str, Any]:
                 "seq": None if cfg.get("seq") is None else str(cfg.get("seq")), "seed": None, "keep_ratio": None}
 
 
-def slam_config(cfg: DictConfig) -> SlamConfig:
-    raw = OmegaConf.to_container(cfg.slam, resolve=True)
-    names = {f.name for f in dataclasses.fields(SlamConfig)}
+def _section(cfg: DictConfig, key: str, cls: type) -> dict[str, Any]:
+    """``cfg.<key>`` as plain keyword arguments for dataclass ``cls``; unknown keys are a ConfigError."""
+    raw = OmegaConf.to_container(cfg[key], resolve=True)
+    names = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(raw) - names)
     if unknown:
-        raise ConfigError(f"slam has no setting {', '.join(unknown)}; expected one of: {', '.join(sorted(names))}")
-    raw["seed"] = int(cfg.seed)
-    return SlamConfig(**raw)
+        raise ConfigError(f"{key} has no setting {', '.join(unknown)}; expected one of: {', '.join(sorted(names))}")
+    return raw
+
+
+def slam_config(cfg: DictConfig) -> SlamConfig:
+    return SlamConfig(**{**_section(cfg, "slam", SlamConfig), "seed": int(cfg.seed)})
+
+
+def prune_config(cfg: DictConfig) -> PruneConfig:
+    return PruneConfig(**_section(cfg, "prune", PruneConfig))
 
 
 def run(cfg: DictConfig, out_dir: str | Path | None = None) -> RunResult:
@@ -213,7 +223,7 @@ def _execute(cfg: DictConfig, out: Path, device: torch.device, record: dict[str,
     timer = PhaseTimer(device)
     probe = MemoryProbe(device, torch_live=bool(cfg.memory.torch_live))
     system = System(
-        slam_config(cfg), seq.K, seq.height, seq.width, strategy, float(cfg.prune.keep_ratio), device, timer=timer
+        slam_config(cfg), seq.K, seq.height, seq.width, strategy, prune_config(cfg), device, timer=timer
     )
     metrics: dict[str, Any] = {"num_frames": 0, "num_keyframes": 0}
     record["metrics"] = metrics
@@ -224,6 +234,7 @@ def _execute(cfg: DictConfig, out: Path, device: torch.device, record: dict[str,
     bar = _progress(n_frames, show)
     warmup = int(cfg.get("warmup_frames", 1))
     t_loop = 0.0
+    between = {"n_pruned": 0, "n_candidates": 0, "prune_s": 0.0}  # prune.every=frame: frames since the last keyframe
     probe.start_window()
     with open(out / "keyframes.csv", "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=KEYFRAME_COLUMNS)
@@ -243,7 +254,9 @@ def _execute(cfg: DictConfig, out: Path, device: torch.device, record: dict[str,
                 timestamps.append(frame.timestamp_s)
                 gt_c2w.append(frame.gt_c2w)
                 metrics["num_frames"] = i + 1
-                if res.is_keyframe:
+                if not res.is_keyframe:
+                    between = {k: v + getattr(res, k) for k, v in between.items()}
+                else:
                     mem = probe.end_window()
                     state_bytes = system.map.state_bytes()
                     row = {
@@ -252,14 +265,16 @@ def _execute(cfg: DictConfig, out: Path, device: torch.device, record: dict[str,
                         "n_gaussians": len(system.map),
                         "n_masked": strategy.masked_count(system.map, system.map.state),
                         "n_added": res.n_added,
-                        "n_pruned": res.n_pruned,
+                        "n_pruned": res.n_pruned + between["n_pruned"],
+                        "n_candidates": res.n_candidates + between["n_candidates"],
                         "state_bytes": state_bytes,
                         "state_mib": round(state_bytes / MIB, 4),
                         **{k: _round(v) for k, v in mem.items()},
                         "track_s": round(res.track_s, 4),
                         "map_s": round(res.map_s, 4),
-                        "prune_s": round(res.prune_s, 4),
+                        "prune_s": round(res.prune_s + between["prune_s"], 4),
                     }
+                    between = dict.fromkeys(between, 0)
                     writer.writerow(row)
                     fh.flush()
                     windows.append(row)
@@ -285,6 +300,10 @@ def _execute(cfg: DictConfig, out: Path, device: torch.device, record: dict[str,
     metrics["memory_method"] = {"cpu_rss": probe.rss_method, "torch_live": bool(cfg.memory.torch_live)}
     metrics.update(_memory_summary(windows, device))
     metrics["gaussians_final"] = len(system.map)
+    # churn: did pruning shrink the map, or only feed re-seeding?
+    metrics["gaussians_added_total"] = sum(w["n_added"] for w in windows)
+    metrics["gaussians_pruned_total"] = sum(w["n_pruned"] for w in windows)
+    metrics["prune_candidates_total"] = sum(w["n_candidates"] for w in windows)
     metrics["keep_ratio"] = float(cfg.prune.keep_ratio)
     est_c2w = [inverse(p.detach().double().cpu()) for p in system.poses[:n_done]]
     metrics.update(_evaluate(cfg, out, seq, system, est_c2w, timestamps, gt_c2w, device))

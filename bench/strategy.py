@@ -60,11 +60,53 @@ class PruneContext:
     candidates: torch.Tensor  # [N] bool, centre in this keyframe's image, in front, not new
     keep_ratio: float  # fraction of candidates to keep (shared by all strategies)
     image_hw: tuple[int, int]
+    target_count: int | None = None  # prune.target=absolute: N_tar as a fixed count, not a ratio
 
     @property
     def n_target(self) -> int:
-        """N_tar = keep_ratio * N_init, N_init being the candidates before pruning."""
+        """N_tar: keep_ratio * N_init (N_init the candidates before pruning), or the absolute count."""
+        if self.target_count is not None:
+            return self.target_count
         return int(math.ceil(self.keep_ratio * int(self.candidates.sum())))
+
+
+PRUNE_TARGETS: tuple[str, ...] = ("ratio", "absolute")
+PRUNE_EVERY: tuple[str, ...] = ("keyframe", "frame")
+GRAD_SOURCES: tuple[str, ...] = ("params_last", "means2d_all")
+
+
+@dataclass
+class PruneConfig:
+    """The pruning schedule shared by every strategy (``prune:`` in conf/config.yaml).
+
+    The defaults follow the paper's text: after each keyframe's mapping, keep ``keep_ratio`` of
+    the candidates. The other choices reproduce the authors' released code, which differs: an
+    absolute target N_tar, pruning on every frame, and g_i from the screen-space mean gradient.
+    """
+
+    keep_ratio: float = 0.4  # every strategy keeps this fraction of the candidates
+    target: str = "ratio"  # ratio: N_tar = keep_ratio x candidates; absolute: N_tar = n_target
+    n_target: int | None = None  # the absolute N_tar (released code: 80,000 on KITTI, 60,000 on EuRoC)
+    every: str = "keyframe"  # keyframe: after each keyframe's mapping; frame: also after each tracked frame
+    # g_i, the per-Gaussian tracking gradient that pocket's tile budgets and gradient pruning read:
+    # params_last = norm of dL/d(all Gaussian parameters) at the last tracking iteration of a frame;
+    # means2d_all = norm of dL/d(projected 2D mean), summed over all tracking iterations and divided
+    # by the iterations that saw the Gaussian (the released code's accumulator)
+    grad_source: str = "params_last"
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.keep_ratio <= 1.0:
+            raise ConfigError(f"prune.keep_ratio must be in (0, 1], got {self.keep_ratio}")
+        for name, allowed in (("target", PRUNE_TARGETS), ("every", PRUNE_EVERY), ("grad_source", GRAD_SOURCES)):
+            if getattr(self, name) not in allowed:
+                raise ConfigError(f"prune.{name} must be one of {', '.join(allowed)}, got '{getattr(self, name)}'")
+        if self.target == "absolute" and (not isinstance(self.n_target, int) or self.n_target < 0):
+            raise ConfigError(f"prune.target=absolute needs an integer prune.n_target >= 0, got {self.n_target!r}")
+
+    @property
+    def target_count(self) -> int | None:
+        """The absolute N_tar for PruneContext, or None when N_tar follows the keep ratio."""
+        return self.n_target if self.target == "absolute" else None
 
 
 @dataclass

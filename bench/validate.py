@@ -72,6 +72,11 @@ SETTINGS: dict[str, Spec] = {
     "out_dir": Spec("str", nullable=True),
     "sweep_name": Spec("str"),
     "prune.keep_ratio": Spec("float", 0.0, 1.0, lo_open=True),
+    # choices and the absolute target's count: bench.strategy.PruneConfig (built in _validate_prune)
+    "prune.target": Spec("str"),
+    "prune.n_target": Spec("int", 0, nullable=True),
+    "prune.every": Spec("str"),
+    "prune.grad_source": Spec("str"),
     "memory.torch_live": Spec("bool"),
     "eval.every": Spec("int", 1),
     "eval.ate_align": Spec("str", choices=ALIGNMENTS),
@@ -275,6 +280,7 @@ def validate(cfg: Any) -> None:
             raise ConfigError(f"{group} has no setting {', '.join(repr(b) for b in bad)}; expected one of: "
                               f"{', '.join(known)}")
     _validate_dataset(tree.get("dataset"))
+    _validate_prune(tree.get("prune") or {})
     _validate_slam(tree)
     _validate_strategy(tree.get("strategy"))
     _validate_lpips(tree.get("eval") or {})
@@ -291,6 +297,12 @@ def _validate_dataset(ds: Any) -> None:
     if isinstance(ds.get("last"), int) and ds.get("last") < ds.get("first", 0):
         raise ConfigError(f"dataset frame range: expected first <= last, found first={ds.get('first', 0)} "
                           f"last={ds['last']}")
+
+
+def _validate_prune(prune: Mapping[str, Any]) -> None:
+    from bench.strategy import PruneConfig
+
+    _build("prune", lambda: PruneConfig(**prune))
 
 
 def _validate_slam(tree: Mapping[str, Any]) -> None:

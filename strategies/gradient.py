@@ -1,7 +1,9 @@
-"""LP-3DGS as the Pocket-SLAM paper describes it: importance is accumulated tracking-gradient magnitude.
+"""LP-3DGS as the Pocket-SLAM paper describes it: importance is tracking-gradient magnitude.
 
 Gaussians that tracking never pulls on contribute nothing to pose estimation; the ones with the
-smallest accumulated ||dL/dG_i|| are pruned first.
+smallest ||dL/dG_i|| are pruned first. The score is the mean over the tracked frames that rendered
+the Gaussian, not a sum since birth: a sum ranks the newest Gaussians lowest merely for their age,
+so they would be pruned and re-seeded at once.
 """
 
 from __future__ import annotations
@@ -13,20 +15,27 @@ import torch
 
 from bench.strategy import PruneContext, Strategy, TrackingContext, top_k_keep
 
-STATE_GRAD_SUM = "gradient_importance"  # [N] sum of g_i over every tracked frame since the Gaussian's birth
+STATE_GRAD_SUM = "gradient_importance"  # [N] sum of g_i over the tracked frames that rendered the Gaussian
+STATE_FRAMES = "gradient_frames"  # [N] tracked frames that rendered the Gaussian
 
 
 @dataclass
 class GradientPruning(Strategy):
-    """Prune the candidates of lowest accumulated gradient norm down to N_tar (ctx.n_target)."""
+    """Prune the candidates of lowest mean gradient norm per observing frame down to N_tar (ctx.n_target)."""
 
-    description: ClassVar[str] = "LP-3DGS: accumulated tracking-gradient magnitude"
+    description: ClassVar[str] = "LP-3DGS: tracking-gradient magnitude per observing frame"
 
     def state_spec(self) -> dict[str, torch.dtype]:
-        return {STATE_GRAD_SUM: torch.float32}
+        return {STATE_GRAD_SUM: torch.float32, STATE_FRAMES: torch.float32}
 
     def on_tracking_step(self, ctx: TrackingContext) -> None:
-        ctx.state[STATE_GRAD_SUM] += ctx.grad_norm.detach().to(torch.float32)
+        seen = ctx.raster.radius_px > 0  # [N] rendered at the tracked pose
+        ctx.state[STATE_GRAD_SUM] += torch.where(seen, ctx.grad_norm.detach().to(torch.float32), 0.0)
+        ctx.state[STATE_FRAMES] += seen.to(torch.float32)
+
+    def score(self, state: dict[str, torch.Tensor]) -> torch.Tensor:
+        """[N] mean g_i over the frames that rendered the Gaussian (0 if none did)."""
+        return state[STATE_GRAD_SUM] / state[STATE_FRAMES].clamp_min(1)
 
     def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
-        return top_k_keep(ctx.state[STATE_GRAD_SUM], ctx.candidates, ctx.n_target) | ctx.is_new
+        return top_k_keep(self.score(ctx.state), ctx.candidates, ctx.n_target) | ctx.is_new

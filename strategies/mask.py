@@ -3,13 +3,19 @@
 Each Gaussian carries one logit l_i, the log-odds of "keep" (the 2-class keep/drop logits are
 [l_i, 0]; MaskGaussian initialises its two scores to [10, 1], i.e. l = 9). During mapping the
 renderer multiplies opacity by a sampled hard mask in {0, 1} whose gradient is the soft sample's,
-so masking is learned from the rendering loss plus a sparsity term on the mean keep probability.
-Outside training the mask is deterministic: kept iff p_keep = sigmoid(l_i) > 0.5.
+so the logits learn from the rendering loss plus a sparsity term on the mean keep probability.
 
-Deletion is deferred: a masked Gaussian stays in memory (and in the optimizer) without rendering,
-and is removed only once it has been masked at ``masked_keyframes`` consecutive keyframes. The
-shared keep ratio is therefore ignored on purpose: how many Gaussians go is decided by the learned
-mask, not by N_tar. The paper attributes MaskGaussian's weak memory savings to this deferral.
+Which Gaussians are masked (``select``):
+- ``ratio`` (default): at each keyframe the lowest-logit (1 - keep_ratio) of the candidates are
+  masked, the rest unmasked. The Pocket-SLAM paper states its MaskGaussian baseline used the same
+  pruning ratio as every method. Learning alone cannot do it here: a logit starting at 9 with
+  Adam steps of 0.01 needs ~900 consistent steps to flip, and a keyframe gets 100 with fresh moments.
+- ``learned``: masked iff p_keep = sigmoid(l_i) <= 0.5 (MaskGaussian's own rule); ignores the ratio.
+
+Masked Gaussians do not render. Deletion is deferred: a masked Gaussian stays in memory (and in
+the optimizer) and is removed once it has ended ``masked_keyframes`` consecutive keyframes masked
+(1 = removed at once, like the other strategies). The paper attributes MaskGaussian's weak memory
+savings to this deferral.
 """
 
 from __future__ import annotations
@@ -20,18 +26,22 @@ from typing import ClassVar
 import torch
 
 from bench.slam.gaussians import GaussianMap, ParamSpec
-from bench.strategy import MappingContext, PruneContext, Strategy
-from strategies._area import check, is_int
+from bench.strategy import MappingContext, PruneContext, Strategy, top_k_keep
+from strategies._area import check, check_choice, is_int
+
+SELECT_MODES: tuple[str, ...] = ("ratio", "learned")
 
 PARAM_LOGITS = "mask_logits"  # [N] log-odds of keep, owned and optimised by the core
-STATE_MASKED_RUN = "mask_masked_keyframes"  # [N] consecutive keyframes the Gaussian has ended masked
+STATE_MASKED_RUN = "mask_masked_keyframes"  # [N] consecutive keyframes the Gaussian has ended masked; > 0 = masked
 
 
 @dataclass
 class MaskPruning(Strategy):
-    """Learned per-Gaussian masks; delete after M consecutive masked keyframes (ignores ctx.keep_ratio)."""
+    """Per-Gaussian masks at the shared ratio (or learned); delete after M consecutive masked keyframes."""
 
-    description: ClassVar[str] = "MaskGaussian: learned Gumbel-softmax masks, deferred deletion"
+    description: ClassVar[str] = "MaskGaussian: masks at the shared ratio ranked by learned logits, deferred deletion"
+
+    select: str = "ratio"  # ratio: mask (1 - keep_ratio) of the candidates by logit | learned: sigmoid(l) <= 0.5
 
     gumbel_tau: float = 1.0  # Gumbel-softmax temperature (MaskGaussian uses torch's default, 1)
     sparsity_weight: float = 5e-4  # lambda_m on mean keep probability (MaskGaussian's lambda_mask)
@@ -47,6 +57,7 @@ class MaskPruning(Strategy):
         check("mask", is_int(self.masked_keyframes) and self.masked_keyframes >= 1,
               f"masked_keyframes must be an integer >= 1; got {self.masked_keyframes!r}")
         check("mask", is_int(self.seed), f"seed must be an integer; got {self.seed!r}")
+        check_choice("mask", "select", self.select, SELECT_MODES)
         self._generators: dict[torch.device, torch.Generator] = {}  # not a field: runtime state, one per device
 
     # ------------------------------------------------------------------ contract
@@ -58,12 +69,15 @@ class MaskPruning(Strategy):
 
     def render_mask(self, ctx: MappingContext) -> torch.Tensor:
         logits = ctx.gaussians.params[PARAM_LOGITS]  # [N]
-        if not ctx.training:
-            return self.hard_mask(logits).to(logits.dtype)
-        return self.sample(logits)
+        if self.select == "learned":
+            return self.sample(logits) if ctx.training else self.hard_mask(logits).to(logits.dtype)
+        shown = (ctx.state[STATE_MASKED_RUN] == 0).to(logits.dtype)  # [N]
+        return self.sample(logits) * shown if ctx.training else shown
 
     def masked_count(self, gaussians: GaussianMap, state: dict[str, torch.Tensor]) -> int:
-        return int((~self.hard_mask(gaussians.params[PARAM_LOGITS])).sum())
+        if self.select == "learned":
+            return int((~self.hard_mask(gaussians.params[PARAM_LOGITS])).sum())
+        return int((state[STATE_MASKED_RUN] > 0).sum())
 
     def mapping_loss(self, ctx: MappingContext) -> torch.Tensor | None:
         logits = ctx.gaussians.params[PARAM_LOGITS]  # [N]
@@ -72,8 +86,15 @@ class MaskPruning(Strategy):
         return self.sparsity_weight * torch.sigmoid(logits).mean()
 
     def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
-        masked = ~self.hard_mask(ctx.gaussians.params[PARAM_LOGITS])  # [N]
+        logits = ctx.gaussians.params[PARAM_LOGITS].detach()  # [N]
         run = ctx.state[STATE_MASKED_RUN]  # [N]
+        if self.select == "learned":
+            masked = ~self.hard_mask(logits)  # [N]
+        else:
+            # candidates are re-ranked at every keyframe; a masked Gaussian out of view stays masked
+            keep = top_k_keep(logits, ctx.candidates, ctx.n_target)  # [N] non-candidates included
+            masked = (ctx.candidates & ~keep) | (~ctx.candidates & (run > 0))
+        masked &= ~ctx.is_new
         run.copy_(torch.where(masked, run + 1, torch.zeros_like(run)))  # unmasked -> the count restarts
         return (run < self.masked_keyframes) | ctx.is_new
 

@@ -2,8 +2,10 @@
 
 LightGaussian scores GS_j = sum over training views and pixels of 1(G_j hits pixel) * o_j * gamma(V_j)
 with gamma(V) = min(V / V_90, 1)^beta, beta = 0.1, V_90 the 90th-percentile volume. In SLAM the
-training views arrive one keyframe at a time, so the per-view term o_j * hits_j is accumulated in
-the strategy's state at every keyframe's prune call and the volume factor is applied at scoring.
+training views arrive one keyframe at a time and Gaussians are born all along the drive. A sum since
+birth ranks a Gaussian born one keyframe ago lowest merely for its age: it is pruned, and its hole
+is re-seeded. So the score is per observation: the mean of o_j * hits_j over the prune calls whose
+view the Gaussian was hit in, times the volume factor at scoring.
 """
 
 from __future__ import annotations
@@ -17,7 +19,8 @@ import torch
 from bench.strategy import PruneContext, Strategy, top_k_keep
 from strategies._area import check
 
-STATE_SIGNIFICANCE = "opacity_significance"  # [N] sum over keyframes of o_i * hit_count_i
+STATE_SIGNIFICANCE = "opacity_significance"  # [N] sum over observing views of o_i * hit_count_i
+STATE_VIEWS = "opacity_views"  # [N] views (prune calls) in which the Gaussian hit at least one pixel
 
 
 def volume_factor(log_scales: torch.Tensor, quantile: float, power: float) -> torch.Tensor:
@@ -36,7 +39,7 @@ def volume_factor(log_scales: torch.Tensor, quantile: float, power: float) -> to
 class OpacityPruning(Strategy):
     """Prune the candidates of lowest accumulated significance down to N_tar (ctx.n_target)."""
 
-    description: ClassVar[str] = "LightGaussian: accumulated opacity x hit count x volume^0.1"
+    description: ClassVar[str] = "LightGaussian: opacity x hit count per observing view x volume^0.1"
 
     use_volume: bool = True  # multiply by the normalised volume factor gamma(V)
     volume_power: float = 0.1  # beta in gamma(V) = min(V / V_90, 1)^beta
@@ -49,11 +52,11 @@ class OpacityPruning(Strategy):
         check(name, 0 < self.volume_quantile <= 1, f"volume_quantile must be in (0, 1]; got {self.volume_quantile!r}")
 
     def state_spec(self) -> dict[str, torch.dtype]:
-        return {STATE_SIGNIFICANCE: torch.float32}
+        return {STATE_SIGNIFICANCE: torch.float32, STATE_VIEWS: torch.float32}
 
     def significance(self, ctx: PruneContext) -> torch.Tensor:
-        """[N] score after this keyframe's hits have been accumulated."""
-        score = ctx.state[STATE_SIGNIFICANCE]
+        """[N] score after this view's hits have been accumulated: the mean over observing views."""
+        score = ctx.state[STATE_SIGNIFICANCE] / ctx.state[STATE_VIEWS].clamp_min(1)
         if self.use_volume and score.numel():
             score = score * volume_factor(ctx.gaussians.log_scales, self.volume_quantile, self.volume_power)
         return score
@@ -63,4 +66,5 @@ class OpacityPruning(Strategy):
             raise ValueError("opacity pruning needs rasterize(..., stats=True) outputs (hit_count is None)")
         hits = ctx.raster.hit_count.to(torch.float32)  # [N] pixels hit in this keyframe
         ctx.state[STATE_SIGNIFICANCE] += ctx.gaussians.opacities.detach() * hits
+        ctx.state[STATE_VIEWS] += (hits > 0).to(torch.float32)
         return top_k_keep(self.significance(ctx), ctx.candidates, ctx.n_target) | ctx.is_new

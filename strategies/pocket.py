@@ -21,6 +21,7 @@ from bench.strategy import PruneContext, Strategy
 from strategies._area import AREA_MODES, area_score, check, check_choice, is_int
 
 BUDGET_ROUNDINGS: tuple[str, ...] = ("ceil", "floor")
+TILE_SOURCES: tuple[str, ...] = ("center", "zero")
 
 
 def tile_budgets(tile: torch.Tensor, grad: torch.Tensor, candidates: torch.Tensor, n_tiles: int, n_target: int,
@@ -89,6 +90,11 @@ class PocketPruning(Strategy):
     budget_max: int = 200  # B_max: no tile keeps more than this many
     area: str = "exact"  # C_i: exact | analytic | radius
     budget_round: str = "ceil"  # B_k rounding: ceil | floor
+    # which tile a Gaussian belongs to: "center" = the tile of its projected centre (the paper);
+    # "zero" = tile (0, 0) for every rendered Gaussian, as in the released code, whose tile lookup
+    # reads a zero-filled means2D placeholder. There the one occupied tile gets min(N_tar, B_max), so
+    # each prune keeps the B_max rendered older Gaussians of largest area. Only for +experiment=released.
+    tile_source: str = "center"
 
     def __post_init__(self) -> None:
         name = "pocket"
@@ -100,6 +106,7 @@ class PocketPruning(Strategy):
               f"budget_max must be an integer >= budget_min ({self.budget_min}) and >= 1; got {self.budget_max!r}")
         check_choice(name, "area", self.area, AREA_MODES)
         check_choice(name, "budget_round", self.budget_round, BUDGET_ROUNDINGS)
+        check_choice(name, "tile_source", self.tile_source, TILE_SOURCES)
 
     def budgets(self, ctx: PruneContext) -> tuple[torch.Tensor, torch.Tensor]:
         """(B_k [T], n_k [T]) for this keyframe's tile grid."""
@@ -108,15 +115,26 @@ class PocketPruning(Strategy):
         if (tiles_x, tiles_y) != (math.ceil(w / self.tile_px), math.ceil(h / self.tile_px)):
             raise StrategyError(f"raster tile grid {tiles_x}x{tiles_y} does not match a {w}x{h} px image "
                                 f"in {self.tile_px} px tiles")
-        return tile_budgets(ctx.raster.tile_id, ctx.track_grad_mean, self._candidates(ctx), tiles_x * tiles_y,
+        return tile_budgets(self._tiles(ctx), ctx.track_grad_mean, self._candidates(ctx), tiles_x * tiles_y,
                             ctx.n_target, self.budget_min, self.budget_max, self.budget_round)
 
     def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
         score = area_score(ctx.raster, ctx.gaussians.opacities, self.area)  # [N] S_i
         budget, _ = self.budgets(ctx)
-        return keep_top_per_tile(score, ctx.raster.tile_id, self._candidates(ctx), budget) | ctx.is_new
+        return keep_top_per_tile(score, self._tiles(ctx), self._candidates(ctx), budget) | ctx.is_new
 
-    @staticmethod
-    def _candidates(ctx: PruneContext) -> torch.Tensor:
-        """[N] bool: the core's candidates, and only those with a tile (tile_id -1 is never pruned)."""
+    def _tiles(self, ctx: PruneContext) -> torch.Tensor:
+        """[N] tile index per Gaussian (see ``tile_source``)."""
+        if self.tile_source == "zero":
+            return torch.zeros_like(ctx.raster.tile_id)
+        return ctx.raster.tile_id
+
+    def _candidates(self, ctx: PruneContext) -> torch.Tensor:
+        """[N] bool: the core's candidates, and only those with a tile (tile_id -1 is never pruned).
+
+        With ``tile_source=zero``: every rendered (radius > 0) Gaussian that is not new, as the
+        released code tests its zero placeholder, always inside the image, and the radius.
+        """
+        if self.tile_source == "zero":
+            return ~ctx.is_new & (ctx.raster.radius_px > 0)
         return ctx.candidates & (ctx.raster.tile_id >= 0)

@@ -26,7 +26,7 @@ from bench.slam.frontend import FlowPnpConfig, relative_motion, to_gray_u8
 from bench.slam.gaussians import DEFAULT_LRS, GaussianMap
 from bench.slam.raster import BACKENDS, RasterOutput, rasterize
 from bench.slam.se3 import inverse, se3_exp, so3_log
-from bench.strategy import MappingContext, PruneContext, Strategy, TrackingContext
+from bench.strategy import MappingContext, PruneConfig, PruneContext, Strategy, TrackingContext
 
 log = logging.getLogger(__name__)
 
@@ -75,11 +75,21 @@ class SlamConfig:
     kf_every: int = 5  # a keyframe at least every N frames
     kf_min_trans_m: float = 3.0  # ... or once the camera moved this far since the last one
     kf_min_rot_deg: float = 15.0  # ... or turned this much
-    densify_stride: int = 2  # new Gaussians from every N-th pixel in each direction
-    densify_silhouette: float = 0.95  # add where the rendered silhouette is below this
+    # Densification (new Gaussians on a keyframe). The defaults re-seed far more eagerly than
+    # SplaTAM; conf/slam/splatam.yaml holds SplaTAM's rule (silhouette < 0.5, no colour rule,
+    # every pixel, opacity 0.5, 1 px seeds). After pruning, the eager rule refills the holes.
+    densify_stride: int = 2  # new Gaussians from every N-th pixel in each direction (SplaTAM: 1)
+    densify_silhouette: float = 0.95  # add where the rendered silhouette is below this (SplaTAM: 0.5)
     densify_depth_err_mult: float = 50.0  # ... or where depth error > mult x median error (SplaTAM)
+    # the median of that rule over: "confident" pixels (valid depth, silhouette > silhouette_min), or
+    # the whole "image" with pixels of no depth counting 0 (SplaTAM's depth_error.median())
+    densify_err_median: str = "confident"
     densify_color_err: float = 0.15  # ... or where mean-RGB L1 error exceeds this (detail seen closer); <= 0 off
-    init_opacity: float = 0.95  # opaque seeds: tracking needs a confident silhouette early
+    # seed sigma in pixels at the seed's depth (scale = depth x sigma_px / fx); None = 0.5 x stride + 0.25,
+    # so neighbouring seeds overlap at about one sigma. SplaTAM: 1 (scale = depth / focal)
+    densify_sigma_px: float | None = None
+    init_opacity: float = 0.95  # opaque seeds: tracking needs a confident silhouette early (SplaTAM: 0.5)
+    name: str = "default"  # the preset's name (conf/slam/NAME.yaml), recorded as slam_preset in metrics.json
     max_depth_m: float = 150.0  # observed depth beyond this is ignored
     lrs: dict[str, float] = field(default_factory=dict)  # overrides of bench/slam/gaussians.py:DEFAULT_LRS
     lost_residual: float = 0.25  # mean colour L1 on tracked pixels that counts as failure ...
@@ -93,6 +103,14 @@ class SlamConfig:
         for name, least in minimum.items():
             if getattr(self, name) is not None and getattr(self, name) < least:
                 raise ConfigError(f"slam.{name} must be >= {least}, got {getattr(self, name)}")
+        if self.densify_err_median not in ("confident", "image"):
+            raise ConfigError(
+                f"slam.densify_err_median must be 'confident' or 'image', got '{self.densify_err_median}'"
+            )
+        if self.densify_sigma_px is not None and not self.densify_sigma_px > 0:
+            raise ConfigError(f"slam.densify_sigma_px must be > 0 or null, got {self.densify_sigma_px}")
+        if not 0.0 < self.init_opacity < 1.0:
+            raise ConfigError(f"slam.init_opacity must be in (0, 1), got {self.init_opacity}")
         if self.tracking_mask not in ("current", "init"):
             raise ConfigError(f"slam.tracking_mask must be 'current' or 'init', got '{self.tracking_mask}'")
         if self.raster_backend not in BACKENDS:
@@ -122,6 +140,7 @@ class FrameResult:
     keyframe_index: int | None = None
     n_added: int = 0
     n_pruned: int = 0
+    n_candidates: int = 0  # Gaussians the strategy could prune (in view, not new), over this frame's prune calls
     track_loss: float = 0.0
     track_s: float = 0.0
     map_s: float = 0.0
@@ -146,11 +165,13 @@ class System:
         height: int,
         width: int,
         strategy: Strategy,
-        keep_ratio: float,
+        prune: PruneConfig | float,
         device: torch.device,
         timer=None,
     ):
-        self.cfg, self.strategy, self.keep_ratio, self.device = cfg, strategy, keep_ratio, device
+        """``prune`` is the pruning schedule, or just the shared keep ratio (the default schedule)."""
+        self.prune = prune if isinstance(prune, PruneConfig) else PruneConfig(keep_ratio=float(prune))
+        self.cfg, self.strategy, self.keep_ratio, self.device = cfg, strategy, self.prune.keep_ratio, device
         # Adam's second moments and the gradients of far or faint Gaussians fall into float32's
         # denormal range, where CPU arithmetic is tens of times slower; flushing them to zero changes
         # no result that matters and keeps the optimiser step from dominating a CPU run
@@ -207,7 +228,13 @@ class System:
         self.poses.append(w2c)
         self.frames_since_kf += 1
         result = FrameResult(w2c=w2c, is_keyframe=False, track_loss=loss, track_s=t1 - t0)
-        if self._is_keyframe(w2c):
+        if not self._is_keyframe(w2c):
+            if self.prune.every == "frame" and self.keyframes:
+                # the next keyframe's index: nothing is new on a frame that added no Gaussian
+                with self._phase("pruning"):
+                    result.n_pruned, result.n_candidates = self._prune(len(self.keyframes), w2c)
+                result.prune_s = time.perf_counter() - t1
+        else:
             kf_idx = len(self.keyframes)
             self.keyframes.append(_Keyframe(frame.index, rgb, depth, w2c))
             with self._phase("mapping"):
@@ -215,7 +242,7 @@ class System:
                 self._map(kf_idx)
             t2 = time.perf_counter()
             with self._phase("pruning"):
-                result.n_pruned = self._prune(kf_idx, w2c)
+                result.n_pruned, result.n_candidates = self._prune(kf_idx, w2c)
             t3 = time.perf_counter()
             result.is_keyframe, result.keyframe_index = True, kf_idx
             result.map_s, result.prune_s = t2 - t1, t3 - t2
@@ -267,13 +294,19 @@ class System:
             p.requires_grad_(False)
         loss_val = float("inf")
         out = mask = None
+        mean2d_grads = self.prune.grad_source == "means2d_all"
+        if mean2d_grads:
+            g2d_sum = torch.zeros(len(self.map), device=self.device)  # [N] sum of ||dL/d mean2d|| over iterations
+            g2d_n = torch.zeros(len(self.map), device=self.device)  # [N] iterations that rendered the Gaussian
         for it in range(iters):
             last = it == iters - 1
-            if last:
+            if last and not mean2d_grads:
                 for p in params:
                     p.requires_grad_(True)
             w2c = se3_exp(xi * scale) @ init
             out = self.render(w2c, stats=last)
+            if mean2d_grads and out.means2d.requires_grad:
+                out.means2d.retain_grad()
             if mask is None or cfg.tracking_mask == "current":
                 mask = out.alpha.detach() > cfg.silhouette_min
             loss, color_l1 = self._tracking_loss(out, rgb, depth, mask)
@@ -282,9 +315,16 @@ class System:
             opt.zero_grad(set_to_none=True)
             loss.backward()
             loss_val = float(loss.detach())
+            if mean2d_grads and out.means2d.grad is not None:
+                seen = (out.radius_px > 0).float()  # [N]
+                g2d_sum += out.means2d.grad.norm(dim=-1) * seen
+                g2d_n += seen
             if last:
-                grad_norm = self._gaussian_grad_norm()
-                self._on_tracked(frame_index, out, grad_norm)
+                if mean2d_grads:
+                    self._on_tracked(frame_index, out, g2d_sum / g2d_n.clamp_min(1), g2d_sum, g2d_n)
+                else:
+                    grad_norm = self._gaussian_grad_norm()
+                    self._on_tracked(frame_index, out, grad_norm, grad_norm, torch.ones_like(grad_norm))
                 for p in params:
                     p.grad = None
             else:
@@ -332,10 +372,13 @@ class System:
                 sq += p.grad.reshape(len(self.map), -1).pow(2).sum(1)
         return sq.sqrt()  # [N]
 
-    def _on_tracked(self, frame_index: int, out: RasterOutput, grad_norm: torch.Tensor) -> None:
+    def _on_tracked(self, frame_index: int, out: RasterOutput, grad_norm: torch.Tensor, grad_sum: torch.Tensor,
+                    grad_n: torch.Tensor) -> None:
+        """``grad_norm`` [N]: this frame's g_i, as strategies see it; ``grad_sum`` / ``grad_n`` [N]: what
+        the core's accumulator (read by pocket's tile budgets as the mean) adds for this frame."""
         st = self.map.state
-        st["_track_grad_sum"] += grad_norm
-        st["_track_grad_n"] += 1
+        st["_track_grad_sum"] += grad_sum
+        st["_track_grad_n"] += grad_n
         self.strategy.on_tracking_step(TrackingContext(frame_index, len(self.keyframes), self.map, st, out, grad_norm))
 
     # ------------------------------------------------------------------ mapping
@@ -346,8 +389,11 @@ class System:
         if len(self.map):
             out = self.render(w2c)
             err = (out.depth - depth).abs()
-            seen = err[valid & (out.alpha > cfg.silhouette_min)]
-            med = seen.median() if seen.numel() else err.new_tensor(float("inf"))
+            if cfg.densify_err_median == "image":  # SplaTAM: over every pixel, those without depth at 0
+                med = (err * valid).median()
+            else:
+                seen = err[valid & (out.alpha > cfg.silhouette_min)]
+                med = seen.median() if seen.numel() else err.new_tensor(float("inf"))
             need = (out.alpha < cfg.densify_silhouette) | (
                 (err > cfg.densify_depth_err_mult * med) & (out.depth > depth)
             )
@@ -367,7 +413,7 @@ class System:
         p_cam = torch.stack([(uv[:, 0] - cx) / fx * z, (uv[:, 1] - cy) / fy * z, z], -1)
         c2w = inverse(w2c)
         means = p_cam @ c2w[:3, :3].T + c2w[:3, 3]
-        sigma_px = 0.5 * s + 0.25  # neighbouring seeds overlap at about one sigma
+        sigma_px = 0.5 * s + 0.25 if cfg.densify_sigma_px is None else cfg.densify_sigma_px
         n = z.shape[0]
         init_logit = torch.logit(torch.tensor(cfg.init_opacity)).item()
         self.map.add(
@@ -426,18 +472,21 @@ class System:
         opt.zero_grad(set_to_none=True)
 
     # ------------------------------------------------------------------ pruning
-    def _prune(self, kf_idx: int, w2c: torch.Tensor) -> int:
+    def _prune(self, kf_idx: int, w2c: torch.Tensor) -> tuple[int, int]:
+        """(Gaussians removed, candidates) after the strategy's keep mask at pose ``w2c``."""
         with torch.no_grad():
             out = self.render(w2c, stats=True)
         st = self.map.state
         grad_mean = st["_track_grad_sum"] / st["_track_grad_n"].clamp_min(1)
         is_new = self.map.birth_kf == kf_idx
         candidates = (out.tile_id >= 0) & ~is_new
-        ctx = PruneContext(kf_idx, self.map, st, out, grad_mean, is_new, candidates, self.keep_ratio, (self.H, self.W))
+        ctx = PruneContext(kf_idx, self.map, st, out, grad_mean, is_new, candidates, self.keep_ratio,
+                           (self.H, self.W), self.prune.target_count)
         keep = self.strategy.after_mapping(ctx)
         st["_track_grad_sum"].zero_()
         st["_track_grad_n"].zero_()
+        n_candidates = int(candidates.sum())
         if keep is None:
-            return 0
+            return 0, n_candidates
         keep = keep.to(torch.bool) | is_new  # new Gaussians are exempt whatever the strategy says
-        return self.map.remove(keep)
+        return self.map.remove(keep), n_candidates

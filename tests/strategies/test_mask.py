@@ -37,9 +37,9 @@ def test_training_mask_is_binary_forward_with_soft_gradients_and_seeded(scene):
     assert not torch.equal(m.detach(), other.detach())
 
 
-def test_eval_mask_is_the_hard_threshold(scene):
+def test_learned_eval_mask_is_the_hard_threshold(scene):
     scene.add_grid(0, 0, 4)
-    s = MaskPruning()
+    s = MaskPruning(select="learned")
     g = scene.gaussian_map(s)
     with torch.no_grad():
         g.params[PARAM_LOGITS].copy_(torch.tensor([2.0, -0.1, 0.1, -3.0]))
@@ -60,9 +60,9 @@ def test_sparsity_loss_is_weighted_mean_keep_probability(scene):
     assert (g.params[PARAM_LOGITS].grad > 0).all()  # it pushes keep probabilities down
 
 
-def test_masked_gaussians_are_deleted_at_the_mth_consecutive_masked_keyframe(scene):
+def test_learned_masks_are_deleted_at_the_mth_consecutive_masked_keyframe(scene):
     idx = scene.add_grid(0, 0, 6)
-    s = MaskPruning(masked_keyframes=3)
+    s = MaskPruning(masked_keyframes=3, select="learned")
     g = scene.gaussian_map(s)
 
     def keyframe(values: list[float], kf: int) -> torch.Tensor:
@@ -84,8 +84,53 @@ def test_masked_gaussians_are_deleted_at_the_mth_consecutive_masked_keyframe(sce
     assert k4.tolist() == [True, False, True, True]  # Gaussian 3 reaches its third masked keyframe
 
 
+def test_ratio_masks_the_lowest_logits_of_the_candidates_and_hides_them(scene):
+    idx = scene.add_grid(0, 0, 10)
+    off = scene.add(-4.0, 20.0)  # outside the image: not a candidate
+    s = MaskPruning(masked_keyframes=3)
+    g = scene.gaussian_map(s)
+    with torch.no_grad():
+        g.params[PARAM_LOGITS].copy_(torch.tensor([float(i) for i in range(10)] + [-9.0]))
+    ctx = scene.context(g, keep_ratio=0.4, keyframe_index=1)
+    assert int(ctx.candidates.sum()) == 10 and ctx.n_target == 4
+    keep = s.after_mapping(ctx)
+    assert keep.all()  # masked, not yet deleted
+    masked = g.state[STATE_MASKED_RUN] > 0
+    assert masked[idx].tolist() == [True] * 6 + [False] * 4 and not masked[off]  # the off-image one is not ranked
+    assert s.masked_count(g, g.state) == 6
+    shown = s.render_mask(mapping_ctx(g, training=False))
+    assert shown[idx].tolist() == [0.0] * 6 + [1.0] * 4
+    trained = s.render_mask(mapping_ctx(g, training=True))
+    assert trained[idx[:6]].eq(0).all()  # hidden in mapping too
+
+
+def test_ratio_deletes_what_stays_masked_for_the_delay(scene):
+    idx = scene.add_grid(0, 0, 5)
+    s = MaskPruning(masked_keyframes=2)
+    g = scene.gaussian_map(s)
+
+    def keyframe(values: list[float], kf: int) -> torch.Tensor:
+        with torch.no_grad():
+            g.params[PARAM_LOGITS].copy_(torch.tensor(values))
+        return s.after_mapping(scene.context(g, keep_ratio=0.4, keyframe_index=kf))  # keeps ceil(0.4 n)
+
+    assert keyframe([0.0, 1.0, 2.0, 3.0, 4.0], 1).all()  # 0, 1, 2 masked
+    k2 = keyframe([5.0, 1.0, 2.0, 3.0, 4.0], 2)  # 0 ranks high now: unmasked; 1, 2, 3 masked
+    assert k2[idx].tolist() == [True, False, False, True, True]  # 1 and 2 reached the delay
+    assert g.state[STATE_MASKED_RUN].tolist() == [0, 2, 2, 1, 0]
+
+
+def test_ratio_with_delay_one_removes_like_the_other_strategies(scene):
+    idx = scene.add_grid(0, 0, 10)
+    s = MaskPruning(masked_keyframes=1)
+    g = scene.gaussian_map(s)
+    ctx = scene.context(g, keep_ratio=0.3)
+    keep = s.after_mapping(ctx)
+    assert int(keep[idx].sum()) == ctx.n_target == 3
+
+
 @pytest.mark.parametrize("params", [{"gumbel_tau": 0.0}, {"masked_keyframes": 0}, {"masked_keyframes": 1.5},
-                                    {"sparsity_weight": -1.0}])
+                                    {"sparsity_weight": -1.0}, {"select": "top"}])
 def test_mask_rejects_bad_parameters(params):
     with pytest.raises(ConfigError, match="strategy 'mask'"):
         load_strategy("mask", params)

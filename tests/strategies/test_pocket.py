@@ -188,3 +188,16 @@ def test_budgets_split_evenly_when_no_tile_has_gradient():
     cand = torch.ones(6, dtype=torch.bool)
     budget, n_k = tile_budgets(tile, torch.zeros(6), cand, 6, 30, 1, 200)
     assert budget.tolist() == [10, 0, 10, 0, 0, 10] and n_k.tolist() == [3, 0, 2, 0, 0, 1]
+
+
+def test_zero_tile_source_keeps_the_budget_max_largest_rendered_gaussians(scene):
+    """The released code's effect: every Gaussian in tile (0,0), so one budget min(N_tar, B_max) for the view."""
+    small = scene.add_grid(0, 0, 10, sigma_px=0.5)
+    large = scene.add_grid(3, 2, 4, sigma_px=2.0)
+    edge = scene.add(-1.0, 20.0, sigma_px=2.0)  # centre off-image, but it renders: a candidate there
+    s = PocketPruning(tile_source="zero", budget_min=1, budget_max=5, area="radius", budget_round="floor")
+    ctx = scene.build(s, keep_ratio=1.0)
+    assert int(ctx.raster.radius_px[edge]) > 0 and not bool(ctx.candidates[edge])
+    keep = s.after_mapping(ctx)
+    assert int(keep.sum()) == 5  # min(N_tar = 14, B_max = 5), the off-image one ranked with the rest
+    assert keep[large].all() and not keep[small].any()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -67,10 +68,30 @@ def test_none_never_prunes(scene):
     assert strategy.after_mapping(ctx) is None
 
 
-def test_mask_ignores_the_keep_ratio(scene):
+def test_learned_mask_ignores_the_keep_ratio(scene):
     mixed_scene(scene)
-    strategy, ctx = prepared(scene, "mask", keep_ratio=0.1)
+    _, ctx = prepared(scene, "mask", keep_ratio=0.1)
+    strategy = load_strategy("mask", {"select": "learned"})
     assert strategy.after_mapping(ctx).all()  # nothing masked yet: nothing deleted, whatever N_tar says
+
+
+@pytest.mark.parametrize("keep_ratio", [0.4, 0.1])
+def test_mask_masks_all_but_n_target_candidates(scene, keep_ratio):
+    groups = mixed_scene(scene)
+    _, ctx = prepared(scene, "mask", keep_ratio)
+    strategy = load_strategy("mask", {"masked_keyframes": 1})
+    keep = strategy.after_mapping(ctx)
+    assert int((keep & ctx.candidates).sum()) == ctx.n_target
+    assert keep[groups["off"]].all() and keep[groups["new"]].all()
+
+
+def test_absolute_target_is_a_count_not_a_ratio(scene):
+    mixed_scene(scene)
+    _, ctx = prepared(scene, "area", 0.4)
+    ctx = dataclasses.replace(ctx, target_count=7)
+    assert ctx.n_target == 7
+    keep = load_strategy("area").after_mapping(ctx)
+    assert int((keep & ctx.candidates).sum()) == 7
 
 
 @pytest.mark.parametrize("name", BUILT_INS)
