@@ -23,13 +23,15 @@ from bench.report.names import method_name
 
 STATUSES: tuple[str, ...] = ("ok", "lost", "failed", "interrupted", "running")
 UNFINISHED: tuple[str, ...] = ("running", "interrupted")  # left out of tables and plots
-RUN_KEYS: tuple[str, ...] = ("strategy", "dataset", "seq", "seed", "keep_ratio", "config_hash")
+RUN_KEYS: tuple[str, ...] = ("strategy", "dataset", "seq", "seed", "keep_ratio", "slam_preset", "config_hash")
 REQUIRED_RUN_KEYS: tuple[str, ...] = ("strategy", "dataset")
 DEFAULT_SEQ = "default"  # the harness writes seq null when a dataset ran its default sequence
+DEFAULT_PRESET = "default"  # runs written before slam_preset existed used the default backend
 # Known metrics in the harness's order; unknown numeric metrics are kept and appended.
 METRIC_KEYS: tuple[str, ...] = (
     "ate_rmse_m", "ate_alignment", "ate_num_poses", "psnr_db", "ssim", "lpips", "eval_frames",
     "fps", "slam_wall_s", "refine_s", "num_frames", "num_keyframes", "gaussians_final", "gaussians_peak",
+    "gaussians_added_total", "gaussians_pruned_total", "prune_candidates_total",
     "state_peak_mib", "cpu_rss_peak_mib", "torch_live_peak_mib", "cuda_alloc_peak_mib",
     "cuda_reserved_peak_mib", "peak_mem_mib",
 )  # fmt: skip
@@ -137,6 +139,7 @@ def read_run(run_dir: Path) -> dict[str, Any]:
         "seq": DEFAULT_SEQ if run.get("seq") in (None, "") else canonical_seq(str(run["dataset"]), run["seq"]),
         "seed": seed,
         "keep_ratio": keep_ratio,
+        "slam_preset": str(run.get("slam_preset") or DEFAULT_PRESET),
         "config_hash": run.get("config_hash"),
         "status": status,
         "error": data.get("error"),
@@ -187,7 +190,7 @@ def collect(roots: Iterable[Path]) -> Collection:
         if present and all(isinstance(v, int) and not isinstance(v, bool) for v in present):
             runs[column] = runs[column].astype("Int64")
     runs["seed"] = runs["seed"].astype("Int64")
-    keys = ["strategy", "dataset", "seq", "seed", "keep_ratio"]
+    keys = ["strategy", "dataset", "seq", "seed", "keep_ratio", "slam_preset"]
     dupes = runs[runs.duplicated(subset=keys, keep=False)]
     for key, group in dupes.groupby(keys, dropna=False, sort=True):
         warnings.append(

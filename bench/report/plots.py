@@ -112,12 +112,15 @@ def peak_column(run: pd.Series, keyframes: pd.DataFrame) -> str | None:
 
 
 def plot_memory_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn) -> Path | None:
-    """Fig. 5: peak memory (solid, left axis) and map state (dashed, right axis) per keyframe.
+    """Fig. 5: peak memory (solid, left axis) and map state (dashed, right axis) per keyframe, and
+    beside it the churn panel: Gaussians in the map (solid) and added so far (dotted).
 
-    The map state is orders of magnitude below the process peak, so it gets its own axis.
+    The map state is orders of magnitude below the process peak, so it gets its own axis. The churn
+    panel shows whether pruning shrank the map or only fed re-seeding: a pruned run whose dotted
+    line climbs far above the baseline's re-adds what it prunes.
     """
-    fig = Figure(figsize=(7.5, 4.2), layout="constrained")
-    ax = fig.add_subplot()
+    fig = Figure(figsize=(13.0, 4.2), layout="constrained")
+    ax, churn_ax = fig.subplots(1, 2, width_ratios=(1.4, 1.0))
     state_ax = ax.twinx()
     looks = Looks(runs)
     probes: set[str] = set()
@@ -139,6 +142,10 @@ def plot_memory_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Pa
             ax.plot(x, kf[column], "-", marker=marker, ms=4, color=colour, label=label)
         state_ax.plot(x, kf["state_mib"], "--", marker=marker, ms=3, mfc="none", color=colour,
                       label=None if column else label)  # fmt: skip
+        if "n_gaussians" in kf.columns:
+            churn_ax.plot(x, kf["n_gaussians"], "-", marker=marker, ms=3, color=colour, label=label)
+        if "n_added" in kf.columns:
+            churn_ax.plot(x, kf["n_added"].cumsum(), ":", color=colour)
         drawn += 1
     if not drawn:
         return None
@@ -149,6 +156,10 @@ def plot_memory_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Pa
     ax.grid(alpha=0.3)
     handles = ax.get_legend_handles_labels()[0] + state_ax.get_legend_handles_labels()[0]
     ax.legend(handles=handles, fontsize="x-small", loc="best")
+    churn_ax.set_xlabel("frame")
+    churn_ax.set_ylabel("Gaussians", fontsize="small")
+    churn_ax.set_title("Churn (solid: in the map; dotted: added so far)")
+    churn_ax.grid(alpha=0.3)
     return _save(fig, out / f"memory_per_keyframe_{file_token(dataset)}_{file_token(seq)}.png")
 
 

@@ -74,11 +74,16 @@ class Table:
 
 @dataclass(frozen=True)
 class Variant:
-    """A measured table row: one strategy at one keep ratio, seeds pooled."""
+    """A measured table row: one strategy at one keep ratio on one backend preset, seeds pooled.
+
+    Runs of different ``slam_preset`` values are different rows (labelled ``[preset]``), never pooled:
+    the presets re-seed differently, so their averages would mix two systems.
+    """
 
     strategy: str
     keep_ratio: float | None
     label: str
+    slam_preset: str = "default"
 
 
 @dataclass(frozen=True)
@@ -96,6 +101,11 @@ ACCURACY_METRICS: tuple[MetricSpec, ...] = (
     MetricSpec("lpips", "LPIPS", "lower", 3),
 )
 MEMORY = MetricSpec("peak_mem_mib", "Peak memory [MiB]", "lower", 1)
+# churn: whether pruning shrank the map or only fed re-seeding
+GAUSSIANS: tuple[MetricSpec, ...] = (
+    MetricSpec("gaussians_final", "Gaussians at end", "lower", 0),
+    MetricSpec("gaussians_peak", "Peak Gaussians", "lower", 0),
+)
 FPS = MetricSpec("fps", "FPS", "higher", 2)
 
 MARKS_NOTE = (
@@ -110,25 +120,37 @@ def _keep(value: object) -> float | None:
     return None if is_missing(value) else float(value)  # type: ignore[arg-type]
 
 
+def _presets(runs: pd.DataFrame) -> pd.Series:
+    return runs["slam_preset"] if "slam_preset" in runs else pd.Series("default", index=runs.index)
+
+
 def variants(runs: pd.DataFrame) -> list[Variant]:
-    """Measured rows in paper order; the keep ratio is named only where a strategy ran several."""
-    pairs = {(s, _keep(k)) for s, k in zip(runs["strategy"], runs["keep_ratio"], strict=True)}
-    ratios: dict[str, int] = {}
-    for strategy, _ in pairs:
-        ratios[strategy] = ratios.get(strategy, 0) + 1
+    """Measured rows in paper order; the keep ratio is named only where a strategy ran several,
+    the backend preset only where the runs hold several."""
+    presets = _presets(runs)
+    triples = {(s, _keep(k), str(p)) for s, k, p in zip(runs["strategy"], runs["keep_ratio"], presets, strict=True)}
+    ratios: dict[tuple[str, str], int] = {}
+    for strategy, _, preset in triples:
+        ratios[strategy, preset] = ratios.get((strategy, preset), 0) + 1
+    several_presets = len({p for _, _, p in triples}) > 1
     out = []
-    for strategy, keep in sorted(pairs, key=lambda p: (strategy_rank(p[0]), -1.0 if p[1] is None else p[1])):
+    def order(p: tuple[str, float | None, str]) -> tuple:
+        return p[2] != "default", p[2], strategy_rank(p[0]), -1.0 if p[1] is None else p[1]
+
+    for strategy, keep, preset in sorted(triples, key=order):
         label = method_name(strategy)
-        if ratios[strategy] > 1:
+        if ratios[strategy, preset] > 1:
             label += f" (keep {keep:g})" if keep is not None else " (keep n/a)"
-        out.append(Variant(strategy, keep, label))
+        if several_presets:
+            label += f" [{preset}]"
+        out.append(Variant(strategy, keep, label, preset))
     return out
 
 
 def variant_runs(runs: pd.DataFrame, variant: Variant) -> pd.DataFrame:
     keep = runs["keep_ratio"]
     same_keep = keep.isna() if variant.keep_ratio is None else keep == variant.keep_ratio
-    return runs[(runs["strategy"] == variant.strategy) & same_keep]
+    return runs[(runs["strategy"] == variant.strategy) & same_keep & (_presets(runs) == variant.slam_preset)]
 
 
 def sequences(runs: pd.DataFrame, dataset: str) -> list[str]:
@@ -345,8 +367,16 @@ class Baseline:
 
     default: Variant
     by_keep: dict[float | None, Variant]
+    by_preset: dict[tuple[str, float | None], Variant] = field(default_factory=dict)
 
     def for_variant(self, variant: Variant) -> Variant:
+        """The baseline of the same preset (and keep ratio where it ran several); presets never mix."""
+        same = self.by_preset.get((variant.slam_preset, variant.keep_ratio))
+        if same is not None:
+            return same
+        same = [v for (p, _), v in self.by_preset.items() if p == variant.slam_preset]
+        if same:
+            return ([v for v in same if v.keep_ratio in (None, 1.0)] or same)[0]
         return self.by_keep.get(variant.keep_ratio, self.default)
 
 
@@ -356,8 +386,9 @@ def pick_baseline(found: list[Variant], baseline: str) -> tuple[Baseline | None,
     if not candidates:
         return None, None
     chosen = ([v for v in candidates if v.keep_ratio in (None, 1.0)] or candidates)[0]
-    result = Baseline(chosen, {v.keep_ratio: v for v in candidates})
-    if len(candidates) == 1:
+    result = Baseline(chosen, {v.keep_ratio: v for v in candidates if v.slam_preset == chosen.slam_preset},
+                      {(v.slam_preset, v.keep_ratio): v for v in candidates})
+    if len({v.keep_ratio for v in candidates}) == 1:
         return result, None
     return result, (
         f"baseline '{baseline}' ran at several keep ratios; each row is compared with the baseline at its "
@@ -407,6 +438,11 @@ def performance_table(
         warnings.append(f"{dataset}: {warning}")
     mem, mem_cells, mem_paper = _metric_block(MEMORY, runs, seqs, found, prows)
     fps, fps_cells, fps_paper = _metric_block(FPS, runs, seqs, found, prows)
+    churn = [_metric_block(spec, runs, seqs, found, None)[0] for spec in GAUSSIANS]
+    notes.append(
+        "Gaussians at end / Peak Gaussians: the map's count after the last keyframe and its largest count "
+        "after any keyframe; fewer than the baseline's means pruning shrank the map, not only fed re-seeding."
+    )
     blocks = [mem]
     if base is not None:
         blocks.append(_relative_block("Memory vs baseline", "percent", mem, mem_cells, base, mem_paper))
@@ -420,6 +456,7 @@ def performance_table(
     else:
         warnings.append(f"{dataset}: no runs of baseline strategy '{baseline}', relative rows left out")
         notes.append(f"No runs of baseline strategy '{baseline}': relative rows left out.")
+    blocks += churn
     caption = f"Peak memory and speed on {dataset_name(dataset)}."
     return Table("performance", dataset, [*seqs, AVG], blocks, caption, notes), warnings
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 KF_COLUMNS = (
-    "kf,frame,n_gaussians,n_masked,n_added,n_pruned,state_bytes,state_mib,cpu_rss_peak_mib,"
+    "kf,frame,n_gaussians,n_masked,n_added,n_pruned,n_candidates,state_bytes,state_mib,cpu_rss_peak_mib,"
     "torch_live_peak_mib,cuda_alloc_peak_mib,cuda_reserved_peak_mib,track_s,map_s,prune_s"
 )
 
@@ -25,6 +25,7 @@ def write_run(
     seed: int = 0,
     keep_ratio: float | None = 0.4,
     status: str = "ok",
+    slam_preset: str | None = None,
     **metrics: Any,
 ) -> Path:
     """One run dir: metrics.json, keyframes.csv, TUM trajectories and density.npz.
@@ -52,7 +53,8 @@ def write_run(
     doc = {
         "status": status,
         "error": "cuda out of memory" if failed else ("tracking lost at frame 12" if status == "lost" else None),
-        "run": dict(strategy=strategy, dataset=dataset, seq=seq, seed=seed, keep_ratio=keep_ratio, config_hash="ab12"),
+        "run": dict(strategy=strategy, dataset=dataset, seq=seq, seed=seed, keep_ratio=keep_ratio, config_hash="ab12",
+                    **({} if slam_preset is None else {"slam_preset": slam_preset})),
         "metrics": {} if failed else values,
         "provenance": {"git_commit": "abc", "git_dirty": False, "versions": {"torch": "2.3.0"}, "device": "cpu"},
     }
@@ -65,7 +67,7 @@ def write_run(
     for kf in range(4):
         state = 0.5 + kf * 0.5
         rows.append(
-            f"{kf},{kf * 5},{1000 + kf * 50},10,60,10,{int(state * 2**20)},{state},{900.0},"
+            f"{kf},{kf * 5},{1000 + kf * 50},10,60,10,25,{int(state * 2**20)},{state},{900.0},"
             f"{peak * (0.7 + 0.1 * kf):.3f},,,0.10,0.50,0.01"
         )
     (run_dir / "keyframes.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")

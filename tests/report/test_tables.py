@@ -113,7 +113,7 @@ def test_relative_to_baseline_by_hand(report) -> None:
 def test_missing_baseline_drops_relative_blocks_with_a_warning(report) -> None:
     tables, warnings = build_tables(report.runs, baseline="nosuch")
     perf = next(t for t in tables if t.kind == "performance" and t.dataset == "kitti")
-    assert [b.title for b in perf.blocks] == ["Peak memory [MiB]", "FPS"]
+    assert [b.title for b in perf.blocks] == ["Peak memory [MiB]", "FPS", "Gaussians at end", "Peak Gaussians"]
     assert any("no runs of baseline strategy 'nosuch'" in w for w in warnings)
 
 
@@ -137,6 +137,25 @@ def test_baseline_at_several_keep_ratios_pairs_by_ratio(tmp_path: Path, make_run
     assert entry(perf, "Memory vs baseline", "MaskGaussian", "00") == "−50.0%"  # no 0.3 baseline: the first one
     assert entry(perf, "Memory vs baseline", "LSG-SLAM baseline (keep 0.4)", "00") == "ref"
     assert any("several keep ratios" in w for w in warnings)
+
+
+def test_presets_are_separate_rows_compared_with_their_own_baseline(tmp_path: Path, make_run) -> None:
+    from bench.report.collect import collect
+
+    for i, (strategy, preset, mem, final) in enumerate([("none", None, 1000.0, 9000), ("pocket", None, 900.0, 8800),
+                                                        ("none", "splatam", 600.0, 4000),
+                                                        ("pocket", "splatam", 300.0, 3000)]):  # fmt: skip
+        make_run(tmp_path / str(i), strategy=strategy, seq="00", keep_ratio=0.4, slam_preset=preset,
+                 peak_mem_mib=mem, gaussians_final=final)  # fmt: skip
+    runs = collect([tmp_path]).runs
+    assert sorted(runs["slam_preset"]) == ["default", "default", "splatam", "splatam"]  # old runs: default
+    tables, _ = build_tables(runs)
+    perf = next(t for t in tables if t.kind == "performance")
+    assert entry(perf, "Peak memory [MiB]", "Ours (w/ Tile Budget) [splatam]", "00") == "**300.0**"  # not pooled
+    assert entry(perf, "Memory vs baseline", "Ours (w/ Tile Budget) [default]", "00") == "−10.0%"  # 900 / 1000
+    assert entry(perf, "Memory vs baseline", "Ours (w/ Tile Budget) [splatam]", "00") == "−50.0%"  # 300 / 600
+    assert entry(perf, "Gaussians at end", "Ours (w/ Tile Budget) [splatam]", "00") == "**3000**"
+    assert entry(perf, "Peak Gaussians", "LSG-SLAM baseline [default]", "00") == "1200"
 
 
 def test_paper_rows_sit_beside_measured_rows(report) -> None:
