@@ -173,7 +173,7 @@ def load_strategy(name: str, params: dict[str, Any] | None = None) -> Strategy:
         )
     from bench.validate import check_fields
 
-    check_fields("strategy.params", cls, params)  # types from the annotations, ranges below
+    check_fields(f"strategy '{name}' parameter", cls, params, sep=" ")  # types from the annotations, ranges below
     try:
         return cls(**params)
     except (TypeError, ValueError) as exc:

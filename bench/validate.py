@@ -202,8 +202,11 @@ def _type_name(tp: Any) -> str:
     return {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(tp, str(tp))
 
 
-def check_fields(prefix: str, cls: type, values: Mapping[str, Any]) -> None:
-    """Unknown keys and wrong types of ``values`` against the dataclass ``cls``, one line each."""
+def check_fields(prefix: str, cls: type, values: Mapping[str, Any], sep: str = ".") -> None:
+    """Unknown keys and wrong types of ``values`` against the dataclass ``cls``, one line each.
+
+    A key is named ``prefix + sep + field`` (``slam.kf_every``, ``strategy 'mask' parameter gumbel_tau``).
+    """
     try:
         hints = typing.get_type_hints(cls)
     except Exception:  # a plugin's annotation that cannot be resolved: its own checks decide
@@ -221,9 +224,9 @@ def check_fields(prefix: str, cls: type, values: Mapping[str, Any]) -> None:
         if typing.get_origin(tp) is dict and isinstance(value, Mapping) and len(args) == 2:
             for sub, item in value.items():  # name the entry, not the whole mapping
                 if not _type_ok(item, args[1]):
-                    raise ConfigError(f"{prefix}.{name}.{sub}: expected {_type_name(args[1])}, found {item!r}")
+                    raise ConfigError(f"{prefix}{sep}{name}.{sub}: expected {_type_name(args[1])}, found {item!r}")
         elif not _type_ok(value, tp):
-            raise ConfigError(f"{prefix}.{name}: expected {_type_name(tp)}, found {value!r}")
+            raise ConfigError(f"{prefix}{sep}{name}: expected {_type_name(tp)}, found {value!r}")
 
 
 def _build(prefix: str, make: Callable[[], Any]) -> Any:

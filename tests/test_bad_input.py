@@ -98,7 +98,7 @@ SETTING_CASES: dict[str, Case] = {
     "strategy-param-plus": Case(["+strategy=pocket", "+strategy.params.nonsense=1"],
                                 ["strategy 'pocket' has no parameter 'nonsense'", "budget_min"]),
     "strategy-param-type": Case(["+strategy=pocket", "strategy.params.budget_min=abc"],
-                                ["strategy.params.budget_min: expected an integer", "found 'abc'"]),
+                                ["strategy 'pocket' parameter budget_min: expected an integer", "found 'abc'"]),
     "strategy-param-range": Case(["+strategy=mask", "strategy.params.gumbel_tau=0"],
                                  ["strategy 'mask': gumbel_tau must be > 0", "got 0"]),
     "strategy-param-choice": Case(["+strategy=area", "strategy.params.area=square"],
