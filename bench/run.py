@@ -13,7 +13,6 @@ import dataclasses
 import json
 import logging
 import math
-import random
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,6 +24,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from bench import provenance
 from bench.datasets import canonical_seq, open_sequence
+from bench.determinism import repeatable
 from bench.errors import BenchError, ConfigError, TrackingLost
 from bench.measure import MemoryProbe, PhaseTimer
 from bench.record import record_failed, write_json
@@ -172,8 +172,6 @@ def run(cfg: DictConfig, out_dir: str | Path | None = None) -> RunResult:
         record_failed(out, str(exc), _keys_best_effort(cfg))
         return RunResult("failed", out, {}, str(exc))
     make_out_dir(out)
-    if cfg.get("threads"):
-        torch.set_num_threads(int(cfg.threads))  # before provenance records the thread count
     cfg_hash = provenance.config_hash(_hashable(cfg))
     keys = {**run_keys(cfg), "config_hash": cfg_hash}
     if cfg.get("resume", True):
@@ -182,12 +180,16 @@ def run(cfg: DictConfig, out_dir: str | Path | None = None) -> RunResult:
             log.info("skipping %s: completed results with config hash %s exist", out, cfg_hash)
             return RunResult(stored["status"], out, stored.get("metrics", {}), stored.get("error"), skipped=True)
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-    record: dict[str, Any] = {"status": "running", "error": None, "run": keys, "metrics": {}, "provenance": {}}
+    record: dict[str, Any] = {
+        "status": "running", "error": None, "run": keys, "determinism": {}, "metrics": {}, "provenance": {},
+    }  # fmt: skip
     write_json(out / "metrics.json", record)
     try:
         device = resolve_device(str(cfg.device))
-        record["provenance"] = provenance.collect(device)
-        status, error, metrics = _execute(cfg, out, device, record)
+        with repeatable(int(cfg.seed), cfg.get("threads"), str(cfg.get("determinism", "strict")), device) as det:
+            record["determinism"] = det
+            record["provenance"] = provenance.collect(device)  # after the thread count is set
+            status, error, metrics = _execute(cfg, out, device, record)
     except BenchError as exc:
         status, error, metrics = "failed", str(exc), record["metrics"]
     except Exception as exc:  # unexpected: record it so the sweep goes on, then re-raise for the traceback
@@ -200,10 +202,6 @@ def run(cfg: DictConfig, out_dir: str | Path | None = None) -> RunResult:
 
 
 def _execute(cfg: DictConfig, out: Path, device: torch.device, record: dict[str, Any]):
-    seed = int(cfg.seed)
-    random.seed(seed)
-    np.random.seed(seed)
-    torch.manual_seed(seed)
     strategy_cfg = cfg.get("strategy")
     name = strategy_cfg.name if strategy_cfg else "none"
     params = (

@@ -65,6 +65,7 @@ SETTINGS: dict[str, Spec] = {
     "seed": Spec("int", 0, _SEED_MAX),
     "device": Spec("str", pattern=r"auto|cpu|cuda(:\d+)?", hint="auto, cpu or cuda[:N]"),
     "threads": Spec("int", 1, nullable=True),
+    "determinism": Spec("str", choices=("strict", "fast")),  # bench/determinism.py:MODES
     "max_frames": Spec("int", 2, nullable=True),
     "warmup_frames": Spec("int", 0),
     "progress": Spec("bool"),
@@ -109,6 +110,9 @@ DATASET_SETTINGS: dict[str, Spec] = {
     "cache_dir": Spec("str", nullable=True),
     # synthetic
     "seed": Spec("int", 0, _SEED_MAX),
+    "run_seed": Spec("int", 0, _SEED_MAX),
+    "rgb_noise_std": Spec("float", 0.0),
+    "depth_noise_rel": Spec("float", 0.0),
     "width": Spec("int", 16),
     "height": Spec("int", 16),
     "n_frames": Spec("int", 2),

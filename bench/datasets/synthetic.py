@@ -4,7 +4,11 @@ Frames are made by analytic ray casting of a ground plane, a sky dome and boxes 
 hedges, trees), never by the SLAM rasterizer, so the benchmark does not grade its renderer
 against itself. The scene mixes what the paper's pruning argument is about: large low-texture
 regions (road, sky) and texture-dense ones (facades with windows, noisy vegetation).
-Everything is a pure function of the config and the seed.
+Everything is a pure function of the config and two seeds: ``seed`` (or ``seq``) lays the scene
+out (where the buildings, hedges and posts stand), ``run_seed`` (the run's ``seed``) draws the
+surface texture and the optional sensor noise. Repeating a run over several ``seed=`` values
+therefore shows the same street with different paint and noise, which is what a noise estimate
+for one sequence needs.
 """
 
 from __future__ import annotations
@@ -118,14 +122,25 @@ class SyntheticSequence(Sequence):
         fov_deg: float,
         supersample: int,
         fps_hz: float,
+        run_seed: int = 0,
+        rgb_noise_std: float = 0.0,
+        depth_noise_rel: float = 0.0,
     ):
         if width < 16 or height < 16 or n_frames < 2:
             raise ConfigError(
                 f"synthetic dataset needs width, height >= 16 and n_frames >= 2, got "
                 f"{width}x{height}, {n_frames} frames"
             )
+        if rgb_noise_std < 0 or depth_noise_rel < 0:
+            raise ConfigError(
+                f"synthetic noise must be >= 0, got rgb_noise_std={rgb_noise_std}, depth_noise_rel={depth_noise_rel}"
+            )
         self.name = f"synthetic/{seed}"
         self.width, self.height, self.seed = width, height, seed
+        self.run_seed = run_seed
+        # run_seed 0 keeps the texture of the scene seed alone (the scenes of earlier versions)
+        self._texture_seed = seed + 7919 * run_seed
+        self.rgb_noise_std, self.depth_noise_rel = rgb_noise_std, depth_noise_rel
         self.supersample = supersample
         self.fps_hz = fps_hz
         fx = 0.5 * width / math.tan(math.radians(fov_deg) / 2)
@@ -147,6 +162,7 @@ class SyntheticSequence(Sequence):
             raise IndexError(i)
         if i not in self._cache:
             rgb, depth = self.render(self.poses[i])
+            rgb, depth = self._sensor_noise(i, rgb, depth)
             self._cache[i] = Frame(
                 index=i,
                 timestamp_s=i / self.fps_hz,
@@ -155,6 +171,17 @@ class SyntheticSequence(Sequence):
                 gt_c2w=torch.from_numpy(self.poses[i].copy()),
             )
         return self._cache[i]
+
+    def _sensor_noise(self, i: int, rgb: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Gaussian colour noise and depth noise proportional to depth, drawn per (run seed, frame)."""
+        if self.rgb_noise_std <= 0 and self.depth_noise_rel <= 0:
+            return rgb, depth
+        rng = np.random.default_rng([self.run_seed, self.seed, i])
+        if self.rgb_noise_std > 0:
+            rgb = np.clip(rgb + rng.normal(0.0, self.rgb_noise_std, rgb.shape), 0, 1)
+        if self.depth_noise_rel > 0:
+            depth = depth * (1.0 + rng.normal(0.0, self.depth_noise_rel, depth.shape))
+        return rgb, depth
 
     def render(self, c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Colour [H, W, 3] (supersampled) and exact z-depth [H, W] (pixel centres) for ``c2w``."""
@@ -213,7 +240,7 @@ class SyntheticSequence(Sequence):
         col = np.zeros((P, 3))
         # sky: low-texture vertical gradient with faint clouds, a function of the hit point only
         elev = np.clip(-(p[:, 1] - self._sky_centre[1]) / self._sky_radius, 0, 1) ** 0.5
-        cloud = value_noise(p[:, 0] / 40, p[:, 2] / 40 + p[:, 1] / 40, self.seed + 7)
+        cloud = value_noise(p[:, 0] / 40, p[:, 2] / 40 + p[:, 1] / 40, self._texture_seed + 7)
         sky_col = (
             np.array([0.55, 0.7, 0.92])[None] * (1 - 0.5 * elev[:, None])
             + np.array([0.85, 0.88, 0.9])[None] * 0.5 * elev[:, None]
@@ -221,12 +248,13 @@ class SyntheticSequence(Sequence):
         col[sky] = sky_col[sky]
         # road: dark asphalt, gentle noise, dashed centre line and edge lines
         g = kind == -2
-        asphalt = (0.27 + 0.12 * value_noise(p[:, 0] * 0.7, p[:, 2] * 0.7, self.seed + 1)
-                   + 0.06 * value_noise(p[:, 0] * 3, p[:, 2] * 3, self.seed + 4))  # patches and wear, no repeats
+        tex = self._texture_seed
+        asphalt = (0.27 + 0.12 * value_noise(p[:, 0] * 0.7, p[:, 2] * 0.7, tex + 1)
+                   + 0.06 * value_noise(p[:, 0] * 3, p[:, 2] * 3, tex + 4))  # patches and wear, no repeats
         lane = ((np.abs(p[:, 0]) < 0.12) & ((p[:, 2] % 6.0) < 3.0)) | (np.abs(np.abs(p[:, 0]) - 3.6) < 0.12)
         road = np.where(lane, 0.9, asphalt)
         side = np.abs(p[:, 0]) > 4.2  # sidewalk, lighter
-        road = np.where(side & ~lane, 0.55 + 0.08 * value_noise(p[:, 0] * 2, p[:, 2] * 2, self.seed + 2), road)
+        road = np.where(side & ~lane, 0.55 + 0.08 * value_noise(p[:, 0] * 2, p[:, 2] * 2, self._texture_seed + 2), road)
         col[g] = np.stack([road, road, road * 1.05], -1)[g]
         # boxes
         for bidx in np.unique(kind[kind >= 0]):
@@ -238,8 +266,8 @@ class SyntheticSequence(Sequence):
             a = np.where(ax == 0, q[:, 2], q[:, 0])
             b = q[:, 1]
             if box.material == 0:  # facade: window grid (per-building spacing) over plaster noise
-                plaster = 0.8 + 0.2 * value_noise(a * 2, b * 2, self.seed + 3 + bidx)
-                plaster = plaster * (0.8 + 0.4 * value_noise(a / 3, b / 3, self.seed + 11 + bidx))
+                plaster = 0.8 + 0.2 * value_noise(a * 2, b * 2, self._texture_seed + 3 + bidx)
+                plaster = plaster * (0.8 + 0.4 * value_noise(a / 3, b / 3, self._texture_seed + 11 + bidx))
                 period = 2.0 + (bidx % 5) * 0.35
                 wa = ((a + 0.37 * bidx) % period) / period
                 wb = ((b - CAMERA_HEIGHT_M) % 3.0) / 3.0
@@ -247,13 +275,13 @@ class SyntheticSequence(Sequence):
                 c = box.tint[None] * plaster[:, None]
                 c = np.where(window[:, None], np.array([0.12, 0.16, 0.22])[None] + 0.1 * plaster[:, None] - 0.08, c)
             elif box.material == 2:  # post: banded paint
-                band = value_noise(b * 1.5, np.full_like(b, float(bidx)), self.seed + 13)
+                band = value_noise(b * 1.5, np.full_like(b, float(bidx)), self._texture_seed + 13)
                 c = box.tint[None] * (0.6 + 0.6 * band[:, None])
             else:  # vegetation: dense multi-octave noise
                 n = (
-                    0.5 * value_noise(a * 3, b * 3, self.seed + 5)
-                    + 0.3 * value_noise(a * 7, b * 7, self.seed + 6)
-                    + 0.2 * value_noise(a * 13, b * 13, self.seed + 9)
+                    0.5 * value_noise(a * 3, b * 3, self._texture_seed + 5)
+                    + 0.3 * value_noise(a * 7, b * 7, self._texture_seed + 6)
+                    + 0.2 * value_noise(a * 13, b * 13, self._texture_seed + 9)
                 )
                 c = box.tint[None] * (0.5 + n[:, None])
             shade = np.where(ax == 1, 0.75, np.where(ax == 0, 1.0, 0.85))  # simple fixed lighting per face
@@ -274,6 +302,9 @@ def open_sequence(cfg: Mapping[str, Any]) -> SyntheticSequence:
         fov_deg=float(cfg.get("fov_deg", 80.0)),
         supersample=int(cfg.get("supersample", 2)),
         fps_hz=float(cfg.get("fps_hz", 10.0)),
+        run_seed=int(cfg.get("run_seed", 0)),
+        rgb_noise_std=float(cfg.get("rgb_noise_std", 0.0)),
+        depth_noise_rel=float(cfg.get("depth_noise_rel", 0.0)),
     )
 
 

@@ -45,11 +45,14 @@ def relative_motion(
     K: np.ndarray,  # [3, 3]
     cfg: FlowPnpConfig,
     prior: np.ndarray | None = None,  # [4, 4] previous -> current camera, e.g. constant velocity
+    rng: np.random.Generator | None = None,
 ) -> tuple[np.ndarray | None, int]:
     """Transform from the previous camera frame to the current one ([4, 4]), and the inlier count.
 
     ``prior`` seeds the iterative PnP (RANSAC still picks the inliers). Returns ``(None, n)`` when
-    there are too few reliable tracks to trust a guess.
+    there are too few reliable tracks to trust a guess. ``rng`` shuffles the correspondences
+    before RANSAC: OpenCV's RANSAC draws its samples from a private generator with a fixed seed
+    (``cv2.setRNGSeed`` does not reach it), so the order of the points is what a seed can vary.
     """
     p0 = cv2.goodFeaturesToTrack(prev_gray, cfg.max_corners, cfg.quality, cfg.min_distance_px)
     if p0 is None or len(p0) < cfg.min_inliers:
@@ -68,11 +71,15 @@ def relative_motion(
         return None, int(good.sum())
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     pts = np.stack([(p0[good, 0] - cx) / fx * z[good], (p0[good, 1] - cy) / fy * z[good], z[good]], -1)  # [M, 3]
+    uv = p1[good]  # [M, 2]
+    if rng is not None:
+        perm = rng.permutation(len(pts))
+        pts, uv = pts[perm], uv[perm]
     rvec0 = tvec0 = None
     if prior is not None and np.isfinite(prior).all():
         rvec0, tvec0 = cv2.Rodrigues(prior[:3, :3].astype(np.float64))[0], prior[:3, 3:4].astype(np.float64).copy()
     found, rvec, tvec, inliers = cv2.solvePnPRansac(
-        pts, p1[good], K.astype(np.float64), None, rvec=rvec0, tvec=tvec0, useExtrinsicGuess=rvec0 is not None,
+        pts, uv, K.astype(np.float64), None, rvec=rvec0, tvec=tvec0, useExtrinsicGuess=rvec0 is not None,
         reprojectionError=cfg.reproj_px, iterationsCount=200, flags=cv2.SOLVEPNP_ITERATIVE,
     )
     n_in = 0 if inliers is None else len(inliers)

@@ -185,7 +185,11 @@ class System:
         self.poses: list[torch.Tensor] = []  # w2c per processed frame
         self.frames_since_kf = 0
         self._bad_frames = 0
-        self._rng = random.Random(cfg.seed)
+        # one generator per consumer, all from the run seed, so that a change in one (say, more
+        # keyframes) does not shift the draws of another
+        self._rng = random.Random(cfg.seed)  # keyframe sampling in mapping and refinement
+        self._densify_rng = np.random.default_rng([cfg.seed, 1])  # seeding-grid offsets per keyframe
+        self._ransac_rng = np.random.default_rng([cfg.seed, 2])  # RANSAC sample order (flow + PnP)
         self._timer = timer
         ys, xs = torch.meshgrid(torch.arange(height, device=device), torch.arange(width, device=device), indexing="ij")
         self._pix = torch.stack([xs, ys], -1).float()  # [H, W, 2]
@@ -272,7 +276,8 @@ class System:
             if self._prev_obs is not None:
                 K = self.K.double().cpu().numpy()
                 prior = velocity.double().cpu().numpy()
-                rel, _ = relative_motion(self._prev_obs[0], self._gray, self._prev_obs[1], K, self._flow_cfg, prior)
+                rel, _ = relative_motion(self._prev_obs[0], self._gray, self._prev_obs[1], K, self._flow_cfg, prior,
+                                         rng=self._ransac_rng)
                 if rel is not None:
                     self.init_source.append("flow_pnp")
                     return torch.as_tensor(rel, dtype=prev.dtype, device=prev.device) @ prev
@@ -402,8 +407,9 @@ class System:
         else:
             need = torch.ones_like(valid)
         s = cfg.densify_stride
+        oy, ox = (int(o) for o in self._densify_rng.integers(0, s, size=2))  # the grid's phase varies with the seed
         grid = torch.zeros_like(valid)
-        grid[s // 2 :: s, s // 2 :: s] = True
+        grid[oy::s, ox::s] = True
         sel = need & valid & grid
         if not sel.any():
             return 0
