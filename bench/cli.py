@@ -1,4 +1,8 @@
-"""The thin CLI over ``bench.run``: Hydra composes the config, known errors print one line.
+"""The thin CLI over ``bench.run`` (``pocketbench`` and ``python -m bench``): Hydra composes the
+config, known errors print one line.
+
+The configs ship inside the package (``bench/conf``) and Hydra reads them as ``pkg://bench.conf``,
+so a wheel install finds them as an editable one does.
 
 Before Hydra takes over, ``precheck`` composes a single run's config itself and validates it
 (``bench.validate``), so a bad setting ends in one ``error:`` line and exit 2 before Hydra creates
@@ -13,33 +17,69 @@ import logging
 import re
 import sys
 import tempfile
+import time
+import warnings
 from pathlib import Path
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
+from bench.conf import CONF_DIR
 from bench.errors import BenchError, ConfigError, StrategyError
 from bench.registry import unknown_name_message
+from bench.summary import run_table
 
-CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+CONF_PKG = "bench.conf"
 # Hydra finds plugins (our sweeper) only in the hydra_plugins namespace package. An editable
 # install made before that folder existed does not map it, so the checkout root joins the path
 # (last, so installed packages win).
-_ROOT = CONF_DIR.parent
+_ROOT = Path(__file__).resolve().parents[1]
 if (_ROOT / "hydra_plugins").is_dir() and str(_ROOT) not in sys.path:
     sys.path.append(str(_ROOT))
 log = logging.getLogger("bench")
 EXIT_CONFIG = 2  # a known error: bad setting, bad input, failed run
 _GROUPS = ("dataset", "slam", "strategy", "experiment")
+# groups a user picks from, in the order --help lists them; slam_dataset is picked by the dataset
+HELP_GROUPS: tuple[str, ...] = ("dataset", "slam", "strategy", "experiment", "hydra/launcher")
+# conf/hydra/launcher/submitit_local.yaml shares its name with the plugin's schema (the command is
+# hydra/launcher=submitit_local either way); Hydra 1.3 still validates it against that schema and
+# warns, at length, that it will stop doing so.
+warnings.filterwarnings("ignore", message=r"(?s).*is validated against ConfigStore schema with the same name")
 
 
 def strategy_names() -> list[str]:
     """Strategies a user can name: built-in configs plus installed entry points."""
     from bench.strategy import available
 
-    return sorted({p.stem for p in (CONF_DIR / "strategy").glob("*.yaml")} | set(available()))
+    return sorted(group_choices("strategy") | set(available()))
+
+
+def group_choices(group: str) -> set[str]:
+    """Config files shipped for ``group`` (``bench/conf/<group>/*.yaml``)."""
+    return {p.stem for p in (CONF_DIR / group).glob("*.yaml")}
+
+
+def help_groups() -> str:
+    """The ``--help`` listing: each user-facing group with its choices, installed plugins included."""
+    from bench.strategy import available
+
+    defaults = {"dataset": "synthetic", "slam": "default", "hydra/launcher": "basic"}
+    lines = []
+    for group in HELP_GROUPS:
+        choices = group_choices(group) | (set(available()) if group == "strategy" else set())
+        if group == "hydra/launcher":
+            choices.add("basic")
+        shown = [f"{c} (default)" if c == defaults.get(group) else c for c in sorted(choices)]
+        lines.append(f"  {group + ':':<16}{', '.join(shown)}")
+    return "\n".join(lines)
+
+
+def register_resolvers() -> None:
+    """The ``${pocketbench.help_groups:}`` interpolation used by ``conf/hydra/help/pocketbench.yaml``."""
+    if not OmegaConf.has_resolver("pocketbench.help_groups"):
+        OmegaConf.register_new_resolver("pocketbench.help_groups", help_groups)
 
 
 def check_overrides(argv: list[str]) -> None:
@@ -177,13 +217,14 @@ def precheck(argv: list[str]) -> None:
     validate(cfg)
 
 
-@hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name="config")
+@hydra.main(version_base="1.3", config_path=f"pkg://{CONF_PKG}", config_name="config")
 def _hydra_main(cfg: DictConfig) -> None:
     from bench.run import run
     from bench.signals import Interrupted
 
     hc = HydraConfig.get()
     multirun = hc.mode == RunMode.MULTIRUN
+    t0 = time.perf_counter()
     try:
         result = run(cfg, out_dir=cfg.get("out_dir") or hc.runtime.output_dir)
     except Interrupted as exc:  # recorded as interrupted; a stopped sweep stops too
@@ -192,20 +233,32 @@ def _hydra_main(cfg: DictConfig) -> None:
     except BenchError as exc:  # a config error before the run dir exists
         print(f"error: {exc}", file=sys.stderr)
         if multirun:
+            _record(hc, "failed", hc.runtime.output_dir, {}, time.perf_counter() - t0)
             return
         sys.exit(EXIT_CONFIG)
+    wall_s = None if result.skipped else time.perf_counter() - t0
     if result.status == "failed":
         print(f"error: {result.error}", file=sys.stderr)
         if not multirun:
             sys.exit(EXIT_CONFIG)
+        _record(hc, "failed", result.out_dir, result.metrics, wall_s)
         return
-    m = result.metrics
     word = "skipped (completed)" if result.skipped else result.status
-    summary = ", ".join(
-        f"{k}={m.get(k)}" for k in ("ate_rmse_m", "psnr_db", "ssim", "fps", "gaussians_peak", "peak_mem_mib") if k in m
-    )
     reason = f" ({result.error})" if result.error else ""
-    print(f"[{word}] {result.out_dir}" + (f": {summary}" if summary else "") + reason)
+    print(f"[{word}] {result.out_dir}" + reason)
+    if multirun:
+        _record(hc, word, result.out_dir, result.metrics, wall_s)
+    else:
+        print(run_table(result.status, result.out_dir, result.metrics, wall_s))
+
+
+def _record(hc, status: str, out_dir: object, metrics: dict, wall_s: float | None) -> None:
+    """One finished sweep run into the sweep's job record, and the sweep progress line."""
+    from bench.summary import record_job
+
+    job = {"num": hc.job.num, "name": hc.job.override_dirname, "status": status, "dir": str(out_dir),
+           "metrics": dict(metrics), "wall_s": wall_s}  # fmt: skip
+    print(record_job(hc.sweep.dir, job), file=sys.stderr, flush=True)
 
 
 def main() -> int:
@@ -215,6 +268,7 @@ def main() -> int:
     except BenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_CONFIG
+    register_resolvers()
     _hydra_main()
     return 0
 

@@ -27,6 +27,7 @@ from bench.datasets import canonical_seq, open_sequence
 from bench.determinism import repeatable
 from bench.errors import BenchError, ConfigError, TrackingLost
 from bench.measure import MemoryProbe, PhaseTimer
+from bench.progress import Phase
 from bench.record import record_failed, write_json
 from bench.slam.se3 import inverse
 from bench.slam.system import SlamConfig, System
@@ -229,7 +230,7 @@ def _execute(cfg: DictConfig, out: Path, device: torch.device, record: dict[str,
     windows: list[dict[str, Any]] = []
     status, error = "ok", None
     show = bool(cfg.get("progress", True))
-    bar = _progress(n_frames, show)
+    bar = Phase("frames", n_frames, "frame", show)
     warmup = int(cfg.get("warmup_frames", 1))
     t_loop = 0.0
     between = {"n_pruned": 0, "n_candidates": 0, "prune_s": 0.0}  # prune.every=frame: frames since the last keyframe
@@ -278,10 +279,10 @@ def _execute(cfg: DictConfig, out: Path, device: torch.device, record: dict[str,
                     windows.append(row)
                     metrics["num_keyframes"] = len(windows)
                     probe.start_window()
-                bar.update(1)
-                bar.set_postfix(gaussians=len(system.map), fps=f"{(i + 1 - warmup) / max(t_loop, 1e-9):.2f}")
+                bar.update(1, gaussians=len(system.map), fps=f"{(i + 1 - warmup) / max(t_loop, 1e-9):.2f}")
         except TrackingLost as exc:
             status, error = "lost", str(exc)
+            bar.close(note=f"lost: {exc}")
             log.warning("%s", exc)
         finally:
             bar.close()
@@ -289,9 +290,8 @@ def _execute(cfg: DictConfig, out: Path, device: torch.device, record: dict[str,
     n_done = metrics["num_frames"]
     metrics["slam_wall_s"] = round(t_loop, 3)
     if system.cfg.refine_iters > 0:  # after the loop: not SLAM time, not in fps
-        log.info("refining the map: %d iterations over %d keyframes", system.cfg.refine_iters, len(system.keyframes))
-        with timer.phase("refine"):
-            system.refine(system.cfg.refine_iters)
+        with timer.phase("refine"), Phase("refine", system.cfg.refine_iters, "iteration", show) as refine_bar:
+            system.refine(system.cfg.refine_iters, on_step=refine_bar.update)
         metrics["refine_s"] = round(timer.totals()["refine"], 3)
     metrics["fps"] = round((n_done - warmup) / t_loop, 4) if t_loop > 0 and n_done > warmup else None
     metrics["phase_s"] = {k: round(v, 3) for k, v in timer.totals().items()}
@@ -374,20 +374,16 @@ def _evaluate(
     every = max(1, int(ev.every))
     idx = list(range(0, len(est_c2w), every))
     preds, targets = [], []
-    with torch.no_grad():
-        for i in idx:
-            w2c = inverse(est_c2w[i]).float().to(device)
-            preds.append(system.render(w2c).color.clamp(0, 1).cpu())
-            targets.append(seq[i].rgb)
-    lp = LPIPS.from_weights(ev.get("lpips_weights"), device=device) if ev.get("lpips", True) else None
-    img = image_metrics(preds, targets, lpips=lp)
+    with Phase("evaluate", len(idx), "frame", bool(cfg.get("progress", True))) as bar:
+        with torch.no_grad():
+            for i in idx:
+                w2c = inverse(est_c2w[i]).float().to(device)
+                preds.append(system.render(w2c).color.clamp(0, 1).cpu())
+                targets.append(seq[i].rgb)
+                bar.update(1)
+        lp = LPIPS.from_weights(ev.get("lpips_weights"), device=device) if ev.get("lpips", True) else None
+        img = image_metrics(preds, targets, lpips=lp)
     img.pop("num_frames", None)  # that count is res["eval_frames"]; metrics["num_frames"] is frames tracked
     res.update({k: _finite_or_none(v) if isinstance(v, float) else v for k, v in img.items()})
     res["eval_frames"] = len(idx)
     return res
-
-
-def _progress(total: int, show: bool):
-    from tqdm import tqdm
-
-    return tqdm(total=total, desc="frames", unit="frame", disable=not show, dynamic_ncols=True, leave=False)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -68,8 +69,9 @@ def test_unknown_strategy_is_one_line_with_suggestion():
 
 
 def _run_cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": f"{REPO}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}  # this checkout
     return subprocess.run([sys.executable, "-m", "bench", *args], cwd=cwd, capture_output=True, text=True,
-                          timeout=600)
+                          timeout=600, env=env)
 
 
 def test_missing_kitti_is_one_line_error(tmp_path):
@@ -99,6 +101,17 @@ def test_subprocess_tiny_run(tmp_path):
     stored = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert stored["status"] == "ok"
     assert (tmp_path / "run" / "keyframes.csv").read_text().count("\n") >= 2
+    # stderr is not a terminal here: one line per phase (tiny runs show progress too)
+    phases = [ln.split(":")[0] for ln in proc.stderr.splitlines() if " in " in ln and ln.split(":")[0].isalpha()]
+    assert phases == ["frames", "refine", "evaluate"], proc.stderr
+    assert "frames: 6/6 frames in " in proc.stderr and "refine: 30/30 iterations in " in proc.stderr
+    # and the run ends with the aligned summary table
+    lines = proc.stdout.splitlines()
+    start = lines.index(f"[ok] {tmp_path / 'run'}")
+    table = {ln.split()[0]: ln for ln in lines[start + 1 :]}
+    for label in ("ATE", "PSNR", "SSIM", "LPIPS", "FPS", "peak", "Gaussians", "wall", "run"):
+        assert label in table, proc.stdout
+    assert table["ATE"].endswith(" m") and " dB" in table["PSNR"] and "MiB" in table["peak"]
     assert not (tmp_path / "hydra" / "metrics.json").exists()
 
 

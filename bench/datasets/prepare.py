@@ -20,16 +20,16 @@ from typing import Any
 import numpy as np
 from omegaconf import OmegaConf
 
+from bench.conf import CONF_DIR
 from bench.datasets import open_sequence
-from bench.datasets._realio import REPO
 from bench.datasets.stereo import StereoSequence
 from bench.errors import BenchError, ConfigError
 
 LOG = logging.getLogger("bench.datasets.prepare")
 
 
-def load_cfg(name: str, overrides: list[str], conf_dir: Path = REPO / "conf" / "dataset") -> dict[str, Any]:
-    """conf/dataset/<name>.yaml with ``key=value`` overrides applied (values parsed as yaml)."""
+def load_cfg(name: str, overrides: list[str], conf_dir: Path = CONF_DIR / "dataset") -> dict[str, Any]:
+    """bench/conf/dataset/<name>.yaml with ``key=value`` overrides applied (values parsed as yaml)."""
     path = conf_dir / f"{name}.yaml"
     if not path.is_file():
         found = ", ".join(sorted(p.stem for p in conf_dir.glob("*.yaml"))) or "(none)"

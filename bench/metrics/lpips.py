@@ -107,7 +107,11 @@ class LPIPS:
         candidates = [Path(path).expanduser()] if path else default_checkpoint_paths()
         found = next((p for p in candidates if p.is_file()), None)
         if found is None:
-            logger.warning("lpips disabled: no alexnet checkpoint found, looked at %s", ", ".join(map(str, candidates)))
+            logger.warning(
+                "lpips disabled: no alexnet checkpoint found, looked at %s; set eval.lpips_weights=PATH "
+                "(or $POCKETBENCH_ALEXNET_WEIGHTS) to alexnet-owt-7be5be79.pth, or eval.lpips=false to skip it",
+                ", ".join(map(str, candidates)),
+            )
             return None
         lin_path = torchmetrics_linear_weights_path()
         if not lin_path.is_file():

@@ -445,16 +445,25 @@ class System:
 
         self._optimize(kf_idx, cfg.mapping_iters, pick)
 
-    def refine(self, iters: int) -> None:
+    def refine(self, iters: int, on_step: Callable[[], None] | None = None) -> None:
         """Optimise the finished map over every keyframe, sampled uniformly.
 
         During the drive a keyframe gets most of its iterations while it is the newest, so the
         views of the early drive end up fitted less well than the last ones. MonoGS ends with the
         same kind of pass (its "colour refinement"); no Gaussian is added or pruned here.
+        ``on_step`` is called after each iteration (progress display).
         """
         if iters <= 0 or not self.keyframes:
             return
-        self._optimize(len(self.keyframes) - 1, iters, lambda it: self._rng.choice(self.keyframes))
+
+        def pick(it: int) -> _Keyframe:
+            if it and on_step is not None:
+                on_step()  # iteration it-1 is done
+            return self._rng.choice(self.keyframes)
+
+        self._optimize(len(self.keyframes) - 1, iters, pick)
+        if on_step is not None:
+            on_step()
 
     def _optimize(self, kf_idx: int, iters: int, pick: Callable[[int], _Keyframe]) -> None:
         """Adam on the map parameters against L1 colour + lambda_d L1 depth of the picked keyframes."""

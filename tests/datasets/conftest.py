@@ -13,7 +13,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 def load_cfg(name: str, **overrides: Any) -> dict[str, Any]:
     """conf/dataset/<name>.yaml as a plain dict with ``overrides`` applied (top-level keys)."""
-    cfg = yaml.safe_load((REPO / "conf" / "dataset" / f"{name}.yaml").read_text())
+    cfg = yaml.safe_load((REPO / "bench" / "conf" / "dataset" / f"{name}.yaml").read_text())
     cfg.update(overrides)
     return cfg
 

@@ -99,6 +99,7 @@ def test_missing_weights_return_none_with_one_notice(
     assert str(tmp_path / "env.pth") in default_msg
     assert str(tmp_path / "hub" / "checkpoints" / "alexnet-owt-7be5be79.pth") in default_msg
     assert all("\n" not in r.getMessage() for r in records)
+    assert all("eval.lpips_weights=PATH" in r.getMessage() for r in records)  # names the setting that fixes it
 
 
 def test_wrong_keys_raise_one_line(tmp_path: Path) -> None:

@@ -52,7 +52,7 @@ def test_a_velocity_prior_seeds_but_does_not_decide(prior_off_m: float):
 
 
 def test_recovers_kitti_motion(shared: Path, tmp_path: Path):
-    cfg = yaml.safe_load((REPO / "conf" / "dataset" / "kitti.yaml").read_text())
+    cfg = yaml.safe_load((REPO / "bench" / "conf" / "dataset" / "kitti.yaml").read_text())
     cfg.update(root=str(shared / "data" / "kitti"), seq="06", last=1, cache_dir=str(tmp_path))
     seq = open_sequence("kitti", cfg)
     T, n = _guess(seq[0], seq[1], seq.K)

@@ -16,7 +16,7 @@ from bench.errors import ConfigError, StrategyError
 from bench.strategy import Strategy, available, load_strategy
 
 BUILT_INS = ["area", "gradient", "mask", "none", "opacity", "pocket"]
-CONF = Path(__file__).resolve().parents[2] / "conf" / "strategy"
+CONF = Path(__file__).resolve().parents[2] / "bench" / "conf" / "strategy"
 
 
 @pytest.mark.parametrize("name", BUILT_INS)

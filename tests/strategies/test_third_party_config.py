@@ -54,7 +54,8 @@ def test_third_party_strategy_with_its_own_config(tmp_path):
     dist.mkdir()
     (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: nearest-plugin\nVersion: 0.1\n")
     (dist / "entry_points.txt").write_text("[pocketbench.strategies]\nnearest = nearest_plugin:KeepNearest\n")
-    env = {**os.environ, "PYTHONPATH": f"{root}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    repo = Path(__file__).resolve().parents[2]  # this checkout's bench, not whichever one is installed
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), str(repo), os.environ.get("PYTHONPATH", "")])}
     listed = subprocess.run([sys.executable, "-m", "bench.list_strategies"], env=env, capture_output=True,
                             text=True, timeout=120)
     assert "nearest" in listed.stdout and "nearest-plugin" in listed.stdout, listed.stdout + listed.stderr
