@@ -76,6 +76,56 @@ def help_groups() -> str:
     return "\n".join(lines)
 
 
+def strategy_defaults(name: str) -> dict:
+    """``params`` defaults of an installed strategy, read from its dataclass fields."""
+    import dataclasses
+
+    from bench.registry import load
+    from bench.strategy import GROUP
+
+    cls = load(GROUP, "strategy", name, StrategyError)
+    params = {}
+    for f in dataclasses.fields(cls):
+        if f.default is not dataclasses.MISSING:
+            value = f.default
+        elif f.default_factory is not dataclasses.MISSING:
+            value = f.default_factory()
+        else:
+            continue  # no default: the dataclass itself will ask for it
+        try:
+            OmegaConf.create({"v": value})
+        except Exception:  # a value Hydra cannot hold (a tensor, an object): left to the dataclass
+            continue
+        params[f.name] = value
+    return params
+
+
+def register_plugin_configs() -> list[str]:
+    """A ``strategy/NAME`` config-store entry for each installed strategy that ships no YAML.
+
+    Why: ``+strategy=NAME`` needs a config in the ``strategy`` group; a plugin should not need
+    Hydra knowledge (a SearchPathPlugin, package data) to be usable by name. Its defaults come
+    from its dataclass, so ``strategy.params.X=...`` overrides work as for the built-ins. Runs
+    when this module is imported, so launcher workers (joblib, submitit) that compose again see
+    the entries too. A plugin that fails to import is skipped here; naming it then gives the
+    registry's one-line error.
+    """
+    from hydra.core.config_store import ConfigStore
+
+    from bench.strategy import available
+
+    added = []
+    for name in sorted(set(available()) - group_choices("strategy")):
+        try:
+            params = strategy_defaults(name)
+        except BenchError:
+            continue
+        ConfigStore.instance().store(group="strategy", name=name, node={"name": name, "params": params},
+                                     provider="pocketbench")  # fmt: skip
+        added.append(name)
+    return added
+
+
 def register_resolvers() -> None:
     """The ``${pocketbench.help_groups:}`` interpolation used by ``conf/hydra/help/pocketbench.yaml``."""
     if not OmegaConf.has_resolver("pocketbench.help_groups"):
@@ -259,6 +309,9 @@ def _record(hc, status: str, out_dir: object, metrics: dict, wall_s: float | Non
     job = {"num": hc.job.num, "name": hc.job.override_dirname, "status": status, "dir": str(out_dir),
            "metrics": dict(metrics), "wall_s": wall_s}  # fmt: skip
     print(record_job(hc.sweep.dir, job), file=sys.stderr, flush=True)
+
+
+register_plugin_configs()
 
 
 def main() -> int:
