@@ -233,8 +233,8 @@ def _backward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x,
                         continue
                     alpha = min(raw, ALPHA_MAX)
                     li = (y - y0) * TILE + (x - x0)
-                    one_m = _F(1.0) - alpha
-                    t_before = tcur[li] / one_m
+                    inv_one_m = _F(1.0) / (_F(1.0) - alpha)
+                    t_before = tcur[li] * inv_one_m
                     w = alpha * t_before
                     q0, q1, q2, q3 = g_acc[p, 0], g_acc[p, 1], g_acc[p, 2], g_acc[p, 3]
                     gf0 += w * q0
@@ -242,11 +242,9 @@ def _backward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x,
                     gf2 += w * q2
                     gf3 += w * q3
                     # d acc / d alpha = f T_before - behind / (1 - alpha); d T_final / d alpha = -T_final / (1 - alpha)
-                    g_alpha = (q0 * (f0 * t_before - behind[li, 0] / one_m)
-                               + q1 * (f1 * t_before - behind[li, 1] / one_m)
-                               + q2 * (f2 * t_before - behind[li, 2] / one_m)
-                               + q3 * (f3 * t_before - behind[li, 3] / one_m)
-                               - g_t[p] * t_final[p] / one_m)
+                    g_alpha = (t_before * (q0 * f0 + q1 * f1 + q2 * f2 + q3 * f3)
+                               - inv_one_m * (q0 * behind[li, 0] + q1 * behind[li, 1] + q2 * behind[li, 2]
+                                              + q3 * behind[li, 3] + g_t[p] * t_final[p]))
                     behind[li, 0] += w * f0
                     behind[li, 1] += w * f1
                     behind[li, 2] += w * f2
