@@ -11,7 +11,8 @@ import sys
 from pathlib import Path
 
 from bench.errors import BenchError
-from bench.report.build import make_report
+from bench.report.build import load_labels, make_report
+from bench.report.plots import DPI
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -23,13 +24,20 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--out", required=True, type=Path, help="output dir, e.g. reports/NAME")
     parser.add_argument("--paper", action="store_true", help="add the paper's figures as '(paper)' rows")
     parser.add_argument("--baseline", default="none", help="strategy the relative columns compare with")
+    parser.add_argument("--format", default="png", help="figure formats, comma-separated: png,pdf,svg (default png)")
+    parser.add_argument("--dpi", type=int, default=DPI, help=f"raster resolution of png figures (default {DPI})")
+    parser.add_argument("--labels", type=Path, default=None,
+                        help="YAML of method names and metrics to show (default: the paper's names, all metrics; "
+                             "template: bench/report/labels.yaml)")  # fmt: skip
     return parser.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
-        result = make_report(args.dirs, args.out, paper=args.paper, baseline=args.baseline)
+        formats = tuple(f.strip().lower().lstrip(".") for f in args.format.split(",") if f.strip())
+        result = make_report(args.dirs, args.out, paper=args.paper, baseline=args.baseline, formats=formats,
+                             dpi=args.dpi, labels=load_labels(args.labels))  # fmt: skip
     except BenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -9,12 +9,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pandas as pd
+import yaml
 
 from bench.report.collect import ReportError, collect
+from bench.report.names import use_method_names
 from bench.report.paper import load_paper_tables
-from bench.report.plots import make_plots
+from bench.report.plots import DPI, make_plots
 from bench.report.render import tables_markdown, to_latex
-from bench.report.tables import Table, build_tables
+from bench.report.tables import SELECTABLE_METRICS, Table, build_tables
 
 
 @dataclass
@@ -29,10 +31,61 @@ class ReportResult:
     warnings: list[str] = field(default_factory=list)
 
 
-def make_report(run_dirs: list[Path], out: Path, paper: bool = False, baseline: str = "none") -> ReportResult:
+@dataclass(frozen=True)
+class Labels:
+    """``--labels``: method names (over the paper's) and the metrics the tables show (None: all)."""
+
+    methods: dict[str, str] = field(default_factory=dict)
+    metrics: tuple[str, ...] | None = None
+
+
+def load_labels(path: Path | None) -> Labels:
+    """Read a labels YAML (see ``bench/report/labels.yaml``); None gives the paper's defaults."""
+    if path is None:
+        return Labels()
+    try:
+        raw = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError) as exc:
+        raise ReportError(f"cannot read labels file '{path}': {str(exc).splitlines()[0]}") from None
+    raw = {} if raw is None else raw
+    if not isinstance(raw, dict) or set(raw) - {"methods", "metrics"}:
+        found = sorted(raw) if isinstance(raw, dict) else type(raw).__name__
+        raise ReportError(f"labels file '{path}': expected keys methods and metrics, found {found}")
+    methods = raw.get("methods") or {}
+    if not isinstance(methods, dict) or not all(isinstance(v, str) for v in methods.values()):
+        raise ReportError(f"labels file '{path}': expected methods as strategy: name, found {methods!r}")
+    metrics = raw.get("metrics")
+    if metrics is not None:
+        bad = [m for m in metrics if m not in SELECTABLE_METRICS] if isinstance(metrics, list) else [metrics]
+        if bad or not metrics:
+            raise ReportError(f"labels file '{path}': expected metrics among {', '.join(SELECTABLE_METRICS)}, "
+                              f"found {', '.join(map(str, bad)) or '(none)'}")  # fmt: skip
+        metrics = tuple(metrics)
+    return Labels({str(k): v for k, v in methods.items()}, metrics)
+
+
+def make_report(
+    run_dirs: list[Path],
+    out: Path,
+    paper: bool = False,
+    baseline: str = "none",
+    formats: tuple[str, ...] = ("png",),
+    dpi: int = DPI,
+    labels: Labels | None = None,
+) -> ReportResult:
     """Collect every run under ``run_dirs`` (sweep or run dirs, searched recursively) and write
     ``runs.csv``, ``accuracy_<dataset>.tex``, ``performance_<dataset>.tex``, ``tables.md`` and
-    the figures into ``out``. Raises ``ReportError`` when no usable run is found."""
+    the figures (each in ``formats``, at ``dpi``) into ``out``. Raises ``ReportError`` when no
+    usable run is found."""
+    labels = labels or Labels()
+    with use_method_names(labels.methods):
+        return _make_report(run_dirs, out, paper, baseline, formats, dpi, labels.metrics)
+
+
+def _make_report(
+    run_dirs: list[Path], out: Path, paper: bool, baseline: str, formats: tuple[str, ...], dpi: int,
+    metrics: tuple[str, ...] | None,
+) -> ReportResult:
     if not baseline:
         raise ReportError("expected a baseline strategy name, found an empty string")
     collection = collect(run_dirs)
@@ -49,7 +102,7 @@ def make_report(run_dirs: list[Path], out: Path, paper: bool = False, baseline: 
     files = [out / "runs.csv"]
     runs.to_csv(files[0], index=False)
 
-    tables, table_warnings = build_tables(runs, load_paper_tables() if paper else None, baseline)
+    tables, table_warnings = build_tables(runs, load_paper_tables() if paper else None, baseline, metrics)
     warnings += table_warnings
     for table in tables:
         path = out / f"{table.name}.tex"
@@ -59,5 +112,5 @@ def make_report(run_dirs: list[Path], out: Path, paper: bool = False, baseline: 
     markdown.write_text(tables_markdown(tables), encoding="utf-8")
     files.append(markdown)
 
-    files += make_plots(runs, out, warnings.append)
+    files += make_plots(runs, out, warnings.append, formats, dpi)
     return ReportResult(out, runs, tables, files, collection.skipped, warnings)

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 # Built-in strategies in the paper's row order (Tables I-IV); third-party names follow, sorted.
 METHOD_NAMES: dict[str, str] = {
@@ -18,9 +20,31 @@ STRATEGY_ORDER: tuple[str, ...] = tuple(METHOD_NAMES)
 DATASET_NAMES: dict[str, str] = {"kitti": "KITTI", "euroc": "EuRoC", "tum": "TUM RGB-D", "synthetic": "Synthetic"}
 
 
+# The names in use: the paper's by default, replaced per report by ``--labels`` (``use_labels``).
+_method_names: dict[str, str] = dict(METHOD_NAMES)
+
+
 def method_name(strategy: str) -> str:
-    """The paper's name for a built-in strategy; a third-party strategy keeps its own name."""
-    return METHOD_NAMES.get(strategy, strategy)
+    """The paper's name for a built-in strategy (or the ``--labels`` one); others keep their own."""
+    return _method_names.get(strategy, strategy)
+
+
+@contextmanager
+def use_method_names(names: dict[str, str]) -> Iterator[None]:
+    """Show strategies under ``names`` (over the paper's) while a report is written."""
+    previous = dict(_method_names)
+    _method_names.update(names)
+    try:
+        yield
+    finally:
+        _method_names.clear()
+        _method_names.update(previous)
+
+
+def column_name(dataset: str, seq: str) -> str:
+    """A table column header for a sequence: the synthetic scene is named by its seed (``scene 0``),
+    which a bare ``0`` would not say."""
+    return f"scene {seq}" if dataset == "synthetic" else str(seq)
 
 
 def strategy_rank(strategy: str) -> tuple[int, str]:

@@ -13,15 +13,17 @@ import math
 import statistics
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 import numpy as np
 import pandas as pd
 from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from matplotlib.ticker import FormatStrFormatter
 
-from bench.report.collect import is_missing
+from bench.report.collect import ReportError, is_missing
 from bench.report.names import STRATEGY_ORDER, dataset_name, file_token, method_name, sequence_sort_key
 from bench.report.tables import Variant, variant_runs, variants
 
@@ -65,10 +67,30 @@ class Looks:
         return DASHES[self._nth.get(variant, 0) % len(DASHES)]
 
 
+FORMATS: tuple[str, ...] = ("png", "pdf", "svg")
+# What the figure files are made as; ``make_plots`` sets it for the duration of one report.
+_output: dict[str, Any] = {"formats": ("png",), "dpi": DPI}
+# keyframes.csv memory columns as a reader knows them
+PROBE_NAMES: dict[str, str] = {
+    "cuda_alloc_peak_mib": "CUDA allocator",
+    "cuda_reserved_peak_mib": "CUDA reserved",
+    "torch_live_peak_mib": "live torch tensors",
+    "cpu_rss_peak_mib": "process RSS",
+}
+
+
 def _save(fig: Figure, path: Path) -> Path:
+    """Write ``path`` in every requested format (same stem); returns the first one's path."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=DPI)
-    return path
+    written = [path.with_suffix(f".{ext}") for ext in _output["formats"]]
+    for target in written:
+        fig.savefig(target, dpi=_output["dpi"])
+    return written[0]
+
+
+def _style_key(label: str, **line: Any) -> Line2D:
+    """A legend entry explaining a line style (black, so it reads as "this style means")."""
+    return Line2D([], [], color="black", label=label, **line)
 
 
 def representative(runs: pd.DataFrame) -> pd.Series | None:
@@ -149,17 +171,23 @@ def plot_memory_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Pa
         drawn += 1
     if not drawn:
         return None
+    probe_names = ", ".join(PROBE_NAMES.get(p, p) for p in sorted(probes)) or "n/a"
     ax.set_xlabel("frame")
-    ax.set_ylabel(f"peak memory [MiB] ({', '.join(sorted(probes)) or 'n/a'})", fontsize="small")
-    state_ax.set_ylabel("map state [MiB]", fontsize="small")
-    ax.set_title(f"Memory per keyframe, {dataset_name(dataset)} {seq} (solid: peak, dashed: map state)")
+    ax.set_ylabel(f"peak memory per keyframe window [MiB] ({probe_names})", fontsize="small")
+    state_ax.set_ylabel("map state (Gaussian parameters, gradients, Adam) [MiB]", fontsize="small")
+    ax.set_title(f"Memory per keyframe, {dataset_name(dataset)} {seq}")
     ax.grid(alpha=0.3)
     handles = ax.get_legend_handles_labels()[0] + state_ax.get_legend_handles_labels()[0]
+    handles += [_style_key("solid: peak memory (left axis)", ls="-"),
+                _style_key("dashed: map state (right axis)", ls="--")]  # fmt: skip
     ax.legend(handles=handles, fontsize="x-small", loc="best")
     churn_ax.set_xlabel("frame")
-    churn_ax.set_ylabel("Gaussians", fontsize="small")
-    churn_ax.set_title("Churn (solid: in the map; dotted: added so far)")
+    churn_ax.set_ylabel("Gaussians [count]", fontsize="small")
+    churn_ax.set_title("Churn")
     churn_ax.grid(alpha=0.3)
+    churn_handles = churn_ax.get_legend_handles_labels()[0]
+    churn_handles += [_style_key("solid: Gaussians in the map", ls="-"), _style_key("dotted: added so far", ls=":")]
+    churn_ax.legend(handles=churn_handles, fontsize="x-small", loc="best")
     return _save(fig, out / f"memory_per_keyframe_{file_token(dataset)}_{file_token(seq)}.png")
 
 
@@ -352,6 +380,7 @@ def plot_ratio(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
     looks = Looks(runs)
     fig = Figure(figsize=(9.0, 3.8), layout="constrained")
     axes = fig.subplots(1, 2)
+    any_lost = False
     for ax, (metric, title) in zip(axes, (("ate_rmse_m", "ATE [m]"), ("psnr_db", "PSNR [dB]")), strict=True):
         by_strategy: dict[str, list[tuple[float | None, float | None, bool]]] = {}
         for variant in found:
@@ -370,13 +399,19 @@ def plot_ratio(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
                 ax.plot([k for k, _ in numeric], [v for _, v in numeric], "-o", color=colour, label=label)
             lost = [k for k, _, is_lost in points if is_lost and k is not None]
             if lost:
+                any_lost = True
                 ax.plot(lost, [0.02] * len(lost), "x", ms=9, mew=2, color=colour,
                         transform=ax.get_xaxis_transform(), clip_on=False)  # fmt: skip
-        ax.set_xlabel("keep ratio")
+        ax.set_xlabel("keep ratio (fraction of candidates kept)")
         ax.set_ylabel(title)
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize="x-small")
-    fig.suptitle(f"Accuracy vs keep ratio, {dataset_name(dataset)} (mean over sequences; x: all seeds lost)")
+    handles = axes[0].get_legend_handles_labels()[0]
+    if any(ln.get_linestyle() == "--" for ln in handles if isinstance(ln, Line2D)):
+        handles.append(_style_key("dashed: strategy run at one keep ratio", ls="--"))
+    if any_lost:
+        handles.append(_style_key("x: all seeds lost", ls="none", marker="x", mew=2))
+    axes[0].legend(handles=handles, fontsize="x-small")
+    fig.suptitle(f"Accuracy vs keep ratio, {dataset_name(dataset)} (mean over sequences)")
     return _save(fig, out / f"ratio_{file_token(dataset)}.png")
 
 
@@ -407,6 +442,7 @@ def plot_pareto(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
     fig = Figure(figsize=(9.5, 4.2), layout="constrained")
     axes = fig.subplots(1, 2)
     panels = (("ate_rmse_m", "ATE [m]", True), ("psnr_db", "PSNR [dB]", False))
+    hollow = False
     for ax, (metric, title, lower) in zip(axes, panels, strict=True):
         full: list[tuple[float, float]] = []
         for variant, mem, mem_covered in points:
@@ -419,23 +455,42 @@ def plot_pareto(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
                        color=colour if complete else "none", edgecolors=colour)  # fmt: skip
             if complete:
                 full.append((mem, value))
+            hollow = hollow or not complete
         front = _front(full, lower)
         if len(front) > 1:
-            ax.plot(*zip(*front, strict=True), "--", color="grey", lw=1.0, drawstyle="steps-post", zorder=2)
+            ax.plot(*zip(*front, strict=True), "--", color="grey", lw=1.0, drawstyle="steps-post", zorder=2,
+                    label="dashed: Pareto front")  # fmt: skip
+            ax.legend(fontsize="x-small", loc="best")
         ax.set_xlabel("peak memory [MiB]")
         ax.set_ylabel(title + (" (lower is better)" if lower else " (higher is better)"))
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize="x-small")
-    fig.suptitle(
-        f"Accuracy vs peak memory, {dataset_name(dataset)} (mean over sequences; dashed: Pareto front; "
-        "hollow: not every sequence)",
-        fontsize="medium",
-    )
+    handles = axes[0].get_legend_handles_labels()[0]
+    if hollow:
+        handles.append(_style_key("hollow: not measured on every sequence", ls="none", marker="o", mfc="none"))
+    axes[0].legend(handles=handles, fontsize="x-small")
+    fig.suptitle(f"Accuracy vs peak memory, {dataset_name(dataset)} (mean over sequences)", fontsize="medium")
     return _save(fig, out / f"pareto_{file_token(dataset)}.png")
 
 
-def make_plots(runs: pd.DataFrame, out: Path, warn: Warn) -> list[Path]:
-    """Every figure the runs support; finished runs only (``running`` ones left out)."""
+def make_plots(
+    runs: pd.DataFrame, out: Path, warn: Warn, formats: tuple[str, ...] = ("png",), dpi: int = DPI
+) -> list[Path]:
+    """Every figure the runs support, in each of ``formats``; finished runs only."""
+    bad = [f for f in formats if f not in FORMATS]
+    if bad or not formats:
+        raise ReportError(f"expected figure formats among {', '.join(FORMATS)}, found {', '.join(formats) or '(none)'}")
+    if dpi <= 0:
+        raise ReportError(f"expected a positive dpi, found {dpi}")
+    previous = dict(_output)
+    _output.update(formats=tuple(formats), dpi=int(dpi))
+    try:
+        first = _make_plots(runs, out, warn)
+    finally:
+        _output.update(previous)
+    return [p.with_suffix(f".{ext}") for p in first for ext in formats]
+
+
+def _make_plots(runs: pd.DataFrame, out: Path, warn: Warn) -> list[Path]:
     done = runs[runs["status"].isin(["ok", "lost"])]
     written: list[Path | None] = []
     for dataset in sorted(set(done["dataset"])):

@@ -9,8 +9,8 @@ from __future__ import annotations
 import re
 from typing import Literal
 
-from bench.report.names import dataset_name
-from bench.report.tables import Block, Cell, Table
+from bench.report.names import column_name, dataset_name
+from bench.report.tables import AVG, Block, Cell, Table
 
 Target = Literal["md", "tex"]
 MARKS: dict[str, str] = {"lost": "-", "na": "n/a", "failed": "failed", "empty": "", "ref": "ref"}
@@ -59,13 +59,18 @@ def format_cell(cell: Cell, block: Block, target: Target) -> str:
     return body
 
 
+def headers(table: Table) -> list[str]:
+    """Column headers: sequences as a reader names them (``scene 0``, not ``0``), then Avg."""
+    return [c if c == AVG else column_name(table.dataset, c) for c in table.columns]
+
+
 def table_title(table: Table) -> str:
     return f"{table.kind.capitalize()} — {dataset_name(table.dataset)}"
 
 
 def to_markdown(table: Table) -> str:
     """A GitHub-flavoured pipe table with the metric named on each block's first row."""
-    header = ["Metric", "Method", *table.columns]
+    header = ["Metric", "Method", *headers(table)]
     lines = [f"## {table_title(table)}", "", table.caption, ""]
     lines.append("| " + " | ".join(md_escape(h) for h in header) + " |")
     lines.append("|" + "|".join(["---", "---"] + ["--:"] * len(table.columns)) + "|")
@@ -92,7 +97,7 @@ def to_latex(table: Table) -> str:
         "\\setlength{\\tabcolsep}{3pt}",
         f"\\begin{{tabular}}{{ll{'r' * ncols}}}",
         "\\toprule",
-        " & ".join(["Metric", "Method", *(tex_escape(c) for c in table.columns)]) + " \\\\",
+        " & ".join(["Metric", "Method", *(tex_escape(c) for c in headers(table))]) + " \\\\",
     ]
     for block in table.blocks:
         lines.append("\\midrule")

@@ -421,7 +421,8 @@ def performance_table(
     warnings: list[str] = []
     notes = [
         MARKS_NOTE,
-        "Peak memory: the run's headline peak_mem_mib (MiB). Memory vs baseline: peak / baseline peak - 1; "
+        "Peak memory: the most memory held at once in any keyframe window, in MiB (the CUDA allocator peak "
+        "on a GPU, the peak of live torch tensors on a CPU). Memory vs baseline: peak / baseline peak - 1; "
         "FPS vs baseline: FPS / baseline FPS; their Avg is the ratio of means over the sequences both have.",
     ]
     prows = None
@@ -461,8 +462,57 @@ def performance_table(
     return Table("performance", dataset, [*seqs, AVG], blocks, caption, notes), warnings
 
 
+# block title -> the metric (runs.csv column) it shows, for ``--labels`` metric selection
+BLOCK_METRIC: dict[str, str] = {
+    **{spec.title: spec.key for spec in (*ACCURACY_METRICS, MEMORY, FPS, *GAUSSIANS)},
+    "Memory vs baseline": MEMORY.key,
+    "FPS vs baseline": FPS.key,
+}
+SELECTABLE_METRICS: tuple[str, ...] = tuple(dict.fromkeys(BLOCK_METRIC.values()))
+# a note that explains blocks of these metrics goes when none of them is shown
+_NOTE_METRICS: dict[str, tuple[str, ...]] = {
+    "Peak memory:": (MEMORY.key, FPS.key),
+    "Gaussians at end": tuple(spec.key for spec in GAUSSIANS),
+}
+
+
+def marks_note(blocks: list[Block]) -> str:
+    """The legend of the marks and conventions that occur in these blocks, and only those."""
+    cells = [c for b in blocks for r in b.rows if not r.paper for c in r.cells]
+    kinds = {c.kind for c in cells}
+    parts = [text for kind, text in (("lost", "'-': tracking lost"), ("na", "'n/a': metric unavailable"),
+                                     ("failed", "'failed': run crashed"), ("empty", "empty: not run"))
+             if kind in kinds]  # fmt: skip
+    sentences = ["; ".join(parts) + "." if parts else ""]
+    if any(c.std is not None for c in cells):
+        sentences.append("Several seeds: mean ± sample std (n-1).")
+    if any(c.note and ("lost" in c.note or "failed" in c.note) for c in cells):
+        sentences.append("'k/n lost' counts seeds left out of the mean.")
+    if any(c.partial for c in cells):
+        sentences.append("Avg: over the sequences with a value (the paper's convention), 'k/n seqs' where not all "
+                         "have one.")  # fmt: skip
+    if any(c.bold for c in cells):
+        sentences.append("Bold: best measured value" + (" (full averages only)." if any(c.partial for c in cells)
+                                                        else "."))  # fmt: skip
+    return " ".join(s for s in sentences if s)
+
+
+def select_metrics(table: Table, metrics: tuple[str, ...] | None) -> Table | None:
+    """``table`` with only the blocks of ``metrics`` (None: all) and the notes that still apply,
+    the marks note rebuilt from what occurs; None when no block is left."""
+    blocks = [b for b in table.blocks if metrics is None or BLOCK_METRIC.get(b.title, b.title) in metrics]
+    if not blocks:
+        return None
+    shown = {BLOCK_METRIC.get(b.title, b.title) for b in blocks}
+    notes = [n for n in table.notes if n != MARKS_NOTE
+             and all(not n.startswith(prefix) or shown & set(keys) for prefix, keys in _NOTE_METRICS.items())]
+    marks = marks_note(blocks)
+    return replace(table, blocks=blocks, notes=[marks, *notes] if marks else notes)
+
+
 def build_tables(
-    runs: pd.DataFrame, paper: pd.DataFrame | None = None, baseline: str = "none"
+    runs: pd.DataFrame, paper: pd.DataFrame | None = None, baseline: str = "none",
+    metrics: tuple[str, ...] | None = None,
 ) -> tuple[list[Table], list[str]]:
     """Accuracy and performance tables per dataset from finished runs (``running``/``interrupted`` left out)."""
     done = runs[~runs["status"].isin(UNFINISHED)]
@@ -470,9 +520,11 @@ def build_tables(
     warnings: list[str] = []
     for dataset in sorted(set(done["dataset"])):
         ds = done[done["dataset"] == dataset]
-        tables.append(accuracy_table(ds, dataset, paper))
         perf, warns = performance_table(ds, dataset, paper, baseline)
-        tables.append(perf)
+        for table in (accuracy_table(ds, dataset, paper), perf):
+            kept = select_metrics(table, metrics)
+            if kept is not None:
+                tables.append(kept)
         warnings.extend(warns)
         if paper is not None and not _has_overlap(paper, "accuracy", dataset, sequences(ds, dataset)):
             warnings.append(f"{dataset}: the paper has no figures for the sequences measured, no paper rows")
