@@ -5,6 +5,7 @@ The one entry point shared by the CLI and by notebooks or tests, so both see the
 
 from __future__ import annotations
 
+import statistics
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,6 +17,7 @@ from bench.report.names import use_method_names
 from bench.report.paper import load_paper_tables
 from bench.report.plots import DPI, make_plots
 from bench.report.render import tables_markdown, to_latex
+from bench.report.stats import confidence_interval
 from bench.report.tables import SELECTABLE_METRICS, Table, build_tables
 
 
@@ -74,8 +76,9 @@ def make_report(
     labels: Labels | None = None,
 ) -> ReportResult:
     """Collect every run under ``run_dirs`` (sweep or run dirs, searched recursively) and write
-    ``runs.csv``, ``accuracy_<dataset>.tex``, ``performance_<dataset>.tex``, ``tables.md`` and
-    the figures (each in ``formats``, at ``dpi``) into ``out``. Raises ``ReportError`` when no
+    ``runs.csv``, ``accuracy_<dataset>.tex``, ``performance_<dataset>.tex``, ``tables.md``,
+    ``stats.csv`` (seed statistics of every table cell) and the figures (each in ``formats``, at
+    ``dpi``) into ``out``. Raises ``ReportError`` when no
     usable run is found."""
     labels = labels or Labels()
     with use_method_names(labels.methods):
@@ -111,6 +114,43 @@ def _make_report(
     markdown = out / "tables.md"
     markdown.write_text(tables_markdown(tables), encoding="utf-8")
     files.append(markdown)
+    files.append(out / "stats.csv")
+    seed_statistics(tables, baseline).to_csv(files[-1], index=False)
 
     files += make_plots(runs, out, warnings.append, formats, dpi)
     return ReportResult(out, runs, tables, files, collection.skipped, warnings)
+
+
+STATS_COLUMNS: tuple[str, ...] = (
+    "dataset", "metric", "method", "strategy", "keep_ratio", "slam_preset", "seq", "n_seeds", "seeds", "mean",
+    "std", "ci95_low", "ci95_high", "baseline", "p_welch", "within_noise",
+)  # fmt: skip
+
+
+def seed_statistics(tables: list[Table], baseline: str) -> pd.DataFrame:
+    """One row per measured table cell (metric blocks, Avg included): n, mean, sample std, the
+    Student-t 95% confidence interval, and Welch's p against the baseline with its verdict."""
+    rows = []
+    for table in tables:
+        for block in table.blocks:
+            if block.style != "value":
+                continue  # relative blocks restate the metric blocks' tests
+            for row in block.rows:
+                if row.variant is None:
+                    continue
+                for column, cell in zip(table.columns, row.cells, strict=True):
+                    if cell.kind != "num":
+                        continue
+                    ci = confidence_interval(cell.values, 0.95)
+                    rows.append({
+                        "dataset": table.dataset, "metric": block.key, "method": row.label,
+                        "strategy": row.variant.strategy, "keep_ratio": row.variant.keep_ratio,
+                        "slam_preset": row.variant.slam_preset, "seq": column, "n_seeds": len(cell.values),
+                        "seeds": " ".join(str(s) for s in cell.seeds), "mean": cell.mean,
+                        "std": statistics.stdev(cell.values) if len(cell.values) > 1 else None,
+                        "ci95_low": None if ci is None else ci[0], "ci95_high": None if ci is None else ci[1],
+                        "baseline": baseline if row.variant.strategy != baseline else None,
+                        "p_welch": cell.p_value,
+                        "within_noise": cell.noise if cell.p_value is not None else None,
+                    })  # fmt: skip
+    return pd.DataFrame(rows, columns=list(STATS_COLUMNS))

@@ -146,7 +146,7 @@ def plot_memory_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Pa
     state_ax = ax.twinx()
     looks = Looks(runs)
     probes: set[str] = set()
-    drawn = 0
+    drawn = other_seeds = 0
     one = runs[runs["seq"] == seq]
     for variant in variants(runs):  # dataset-wide, so labels match the tables
         run = representative(variant_runs(one, variant))
@@ -169,6 +169,16 @@ def plot_memory_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Pa
         if "n_added" in kf.columns:
             churn_ax.plot(x, kf["n_added"].cumsum(), ":", color=colour)
         drawn += 1
+        # the other seeds' peaks, thin: how much of a gap between methods the seeds alone open
+        for _, other in variant_runs(one, variant).iterrows():
+            if other["path"] == run["path"] or other["status"] not in ("ok", "lost"):
+                continue
+            okf = read_keyframes(Path(other["path"]), warn)
+            other_column = None if okf is None or okf.empty else peak_column(other, okf)
+            if other_column is not None:
+                ox = okf["frame"] if "frame" in okf.columns else okf["kf"]
+                ax.plot(ox, okf[other_column], "-", lw=0.8, alpha=0.35, color=colour)
+                other_seeds += 1
     if not drawn:
         return None
     probe_names = ", ".join(PROBE_NAMES.get(p, p) for p in sorted(probes)) or "n/a"
@@ -180,6 +190,8 @@ def plot_memory_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Pa
     handles = ax.get_legend_handles_labels()[0] + state_ax.get_legend_handles_labels()[0]
     handles += [_style_key("solid: peak memory (left axis)", ls="-"),
                 _style_key("dashed: map state (right axis)", ls="--")]  # fmt: skip
+    if other_seeds:
+        handles.append(_style_key("thin: the other seeds' peaks", ls="-", lw=0.8, alpha=0.35))
     ax.legend(handles=handles, fontsize="x-small", loc="best")
     churn_ax.set_xlabel("frame")
     churn_ax.set_ylabel("Gaussians [count]", fontsize="small")
@@ -372,6 +384,18 @@ def _dataset_average(runs: pd.DataFrame, metric: str) -> tuple[float | None, int
     return float(statistics.fmean(per_seq)), len(per_seq)
 
 
+def _per_seed_average(runs: pd.DataFrame, metric: str) -> pd.Series:
+    """Per seed, the mean over sequences of its ok runs; only seeds that ran every sequence the
+    variant has a value on, so each point averages the same sequences as the mean does."""
+    if metric not in runs:
+        return pd.Series(dtype=float)
+    ok = runs[(runs["status"] == "ok") & runs[metric].notna() & runs["seed"].notna()]
+    if ok.empty:
+        return pd.Series(dtype=float)
+    table = ok.pivot_table(index="seed", columns="seq", values=metric, aggfunc="mean")
+    return table.dropna().astype(float).mean(axis=1)
+
+
 def plot_ratio(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
     """Fig. 3a: ATE and PSNR against keep ratio; single-ratio strategies as dashed references."""
     found = variants(runs)
@@ -443,16 +467,27 @@ def plot_pareto(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
     axes = fig.subplots(1, 2)
     panels = (("ate_rmse_m", "ATE [m]", True), ("psnr_db", "PSNR [dB]", False))
     hollow = False
+    most_seeds = 0
     for ax, (metric, title, lower) in zip(axes, panels, strict=True):
         full: list[tuple[float, float]] = []
         for variant, mem, mem_covered in points:
-            value, covered = _dataset_average(variant_runs(runs, variant), metric)
+            vr = variant_runs(runs, variant)
+            value, covered = _dataset_average(vr, metric)
             if value is None:
                 continue
             complete = min(covered, mem_covered) == n_seqs
             colour = looks.colour(variant.strategy)
             ax.scatter(mem, value, s=45, marker=looks.marker(variant), zorder=3, label=variant.label,
                        color=colour if complete else "none", edgecolors=colour)  # fmt: skip
+            # the seeds behind the mean: one small point each, and +-1 sample std bars
+            seeds = pd.concat([_per_seed_average(vr, "peak_mem_mib"), _per_seed_average(vr, metric)], axis=1,
+                              keys=["mem", "value"]).dropna()  # fmt: skip
+            most_seeds = max(most_seeds, len(seeds))
+            if len(seeds) >= 2:
+                ax.scatter(seeds["mem"], seeds["value"], s=12, marker=looks.marker(variant), color=colour,
+                           alpha=0.45, zorder=2)  # fmt: skip
+                ax.errorbar(mem, value, xerr=seeds["mem"].std(), yerr=seeds["value"].std(), fmt="none", ecolor=colour,
+                            elinewidth=0.8, capsize=2, zorder=2)  # fmt: skip
             if complete:
                 full.append((mem, value))
             hollow = hollow or not complete
@@ -467,8 +502,11 @@ def plot_pareto(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
     handles = axes[0].get_legend_handles_labels()[0]
     if hollow:
         handles.append(_style_key("hollow: not measured on every sequence", ls="none", marker="o", mfc="none"))
+    if most_seeds >= 2:
+        handles.append(_style_key("small: one seed each; bars: ±1 std over seeds", ls="none", marker="o", ms=3))
     axes[0].legend(handles=handles, fontsize="x-small")
-    fig.suptitle(f"Accuracy vs peak memory, {dataset_name(dataset)} (mean over sequences)", fontsize="medium")
+    seeds = "" if most_seeds >= 2 else "; 1 seed: no noise estimate"
+    fig.suptitle(f"Accuracy vs peak memory, {dataset_name(dataset)} (mean over sequences{seeds})", fontsize="medium")
     return _save(fig, out / f"pareto_{file_token(dataset)}.png")
 
 

@@ -28,7 +28,7 @@ _TEX_RE = re.compile("|".join(re.escape(k) for k in _TEX_SPECIALS))
 def tex_escape(text: str) -> str:
     """Escape LaTeX's special characters; non-ASCII is replaced so any engine compiles it."""
     escaped = _TEX_RE.sub(lambda m: _TEX_SPECIALS[m.group(0)], text)
-    escaped = escaped.replace("±", r"$\pm$").replace("×", r"$\times$").replace("−", "-")
+    escaped = escaped.replace("±", r"$\pm$").replace("×", r"$\times$").replace("−", "-").replace("†", r"$\dagger$")
     return escaped.encode("ascii", "replace").decode("ascii")
 
 
@@ -54,6 +54,8 @@ def format_cell(cell: Cell, block: Block, target: Target) -> str:
         body += cell.unit if target == "md" else tex_escape(cell.unit)
     if cell.bold:
         body = f"**{body}**" if target == "md" else rf"\textbf{{{body}}}"
+    if cell.noise:  # within seed noise of the baseline (see the table's seed note)
+        body += "†" if target == "md" else r"$^\dagger$"
     if cell.note:
         body += f" ({cell.note})" if target == "md" else f" ({tex_escape(cell.note)})"
     return body

@@ -16,6 +16,7 @@ import pandas as pd
 from bench.report.collect import UNFINISHED, is_missing
 from bench.report.names import dataset_name, file_token, method_name, paper_sequence, sequence_sort_key, strategy_rank
 from bench.report.paper import LOST, PAPER_METRIC, PAPER_STRATEGY, PAPER_UNIT, paper_values
+from bench.report.stats import ALPHA, welch_p, within_noise
 
 CellKind = Literal["num", "lost", "na", "failed", "empty", "ref"]
 Better = Literal["lower", "higher"]
@@ -35,6 +36,10 @@ class Cell:
     note: str = ""  # e.g. "1/3 lost": seeds left out of the mean
     bold: bool = False
     partial: bool = False  # an Avg over fewer sequences than shown: not ranked against full ones
+    values: tuple[float, ...] = ()  # the per-seed values behind mean and std (an Avg: per-seed averages)
+    seeds: tuple[int | None, ...] = ()  # their seeds, in the same order
+    p_value: float | None = None  # Welch's t-test against the baseline's cell in the same column
+    noise: bool = False  # the difference from the baseline is within seed noise (p >= ALPHA)
 
 
 EMPTY = Cell("empty")
@@ -45,6 +50,7 @@ class Row:
     label: str
     cells: list[Cell]
     paper: bool = False
+    variant: Variant | None = None  # the measured row's strategy/keep/preset; None for paper rows
 
 
 @dataclass
@@ -56,6 +62,7 @@ class Block:
     style: Style
     decimals: int
     rows: list[Row] = field(default_factory=list)
+    key: str = ""  # the runs.csv metric behind the block (relative blocks: the source block's)
 
 
 @dataclass
@@ -166,13 +173,16 @@ def seed_cell(runs: pd.DataFrame, metric: str) -> Cell:
     ok = runs[status == "ok"]
     if ok.empty:
         return Cell("lost") if n_lost else Cell("failed") if n_failed else EMPTY
-    values = [float(v) for v in ok[metric] if not is_missing(v)] if metric in ok else []
-    if not values:
+    pairs = [(float(v), None if is_missing(s) else int(s)) for v, s in zip(ok[metric], ok["seed"], strict=True)
+             if not is_missing(v)] if metric in ok else []  # fmt: skip
+    if not pairs:
         return Cell("na")
+    values = [v for v, _ in pairs]
     total = len(runs)
     notes = [f"{n}/{total} {what}" for n, what in ((n_lost, "lost"), (n_failed, "failed")) if n]
     std = statistics.stdev(values) if len(values) > 1 else None
-    return Cell("num", mean=statistics.fmean(values), std=std, note=", ".join(notes))
+    return Cell("num", mean=statistics.fmean(values), std=std, note=", ".join(notes), values=tuple(values),
+                seeds=tuple(s for _, s in pairs))  # fmt: skip
 
 
 def average_cell(cells: list[Cell]) -> Cell:
@@ -182,12 +192,26 @@ def average_cell(cells: list[Cell]) -> Cell:
         decimals = max((c.decimals for c in numbers if c.decimals is not None), default=None)
         partial = len(numbers) < len(cells)
         note = f"{len(numbers)}/{len(cells)} seqs" if partial else ""
+        seeds, values = ((), ()) if partial else _per_seed_averages(numbers)
+        # printed without ± as in the paper; the per-seed averages feed the noise test and stats.csv
         return Cell("num", mean=statistics.fmean(c.mean for c in numbers), decimals=decimals,
-                    unit=numbers[0].unit, note=note, partial=partial)  # fmt: skip
+                    unit=numbers[0].unit, note=note, partial=partial, values=values, seeds=seeds)  # fmt: skip
     for kind in ("lost", "failed", "na"):
         if any(c.kind == kind for c in cells):
             return Cell(kind)
     return EMPTY
+
+
+def _per_seed_averages(cells: list[Cell]) -> tuple[tuple[int, ...], tuple[float, ...]]:
+    """Per seed, the mean over the sequences: the sample an Avg's noise is judged on. Only seeds
+    that every sequence ran once each count; otherwise there is no sample."""
+    by_seed: list[dict[int, float]] = []
+    for cell in cells:
+        if len(cell.seeds) != len(set(cell.seeds)) or None in cell.seeds:
+            return (), ()
+        by_seed.append(dict(zip(cell.seeds, cell.values, strict=True)))  # type: ignore[arg-type]
+    common = sorted(set.intersection(*(set(d) for d in by_seed))) if by_seed else []
+    return tuple(common), tuple(statistics.fmean(d[s] for d in by_seed) for s in common)
 
 
 def _decimals(text: str) -> int:
@@ -285,16 +309,50 @@ def _metric_block(
         cells = [seed_cell(vr[vr["seq"] == s], spec.key) for s in seqs]
         cells.append(average_cell(cells))
         measured_cells[variant] = cells
-        measured.append((variant, Row(variant.label, cells)))
+        measured.append((variant, Row(variant.label, cells, variant=variant)))
     paper_cells: dict[str, list[Cell]] = {}
     prow: list[tuple[str, Row]] = []
     if paper_rows is not None:
         for method, per_metric in paper_rows.by_method.items():
             paper_cells[method] = per_metric[spec.key]
             prow.append((method, Row(f"(paper) {method}", list(per_metric[spec.key]), paper=True)))
-    block = Block(spec.title, spec.better, "value", spec.decimals, _ordered_rows(measured, prow))
+    block = Block(spec.title, spec.better, "value", spec.decimals, _ordered_rows(measured, prow), key=spec.key)
     mark_best(block)
     return block, measured_cells, paper_cells
+
+
+def mark_noise(block: Block, measured: dict[Variant, list[Cell]], baseline: Baseline | None) -> None:
+    """Test every measured cell against the baseline's cell in its column (Welch, per-seed values)
+    and flag it when the difference is within seed noise; ``measured`` is updated alongside."""
+    if baseline is None:
+        return
+    for row in block.rows:
+        variant = row.variant
+        if variant is None or variant.strategy == baseline.default.strategy:
+            continue
+        base = measured.get(baseline.for_variant(variant))
+        if base is None:
+            continue
+        for i, (cell, ref) in enumerate(zip(row.cells, base, strict=True)):
+            if cell.kind == "num" and ref.kind == "num":
+                p = welch_p(cell.values, ref.values)
+                row.cells[i] = replace(cell, p_value=p, noise=within_noise(p))
+        measured[variant] = row.cells
+
+
+def seed_note(blocks: list[Block]) -> str:
+    """What the spread in the table rests on: how many seeds per cell, and the noise marker."""
+    counts = sorted({len(c.values) for b in blocks for r in b.rows if not r.paper for c in r.cells[:-1]
+                     if c.kind == "num" and c.values})  # fmt: skip
+    if not counts or counts[-1] < 2:
+        return "1 seed: no noise estimate; a difference from the baseline may be seed noise."
+    n = str(counts[0]) if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
+    return (
+        f"Seeds per cell: {n}; 95% confidence intervals in stats.csv. "
+        f"†: within seed noise of the baseline (Welch's t-test on the per-seed values, p >= {ALPHA:g}); "
+        "a cell with fewer than 2 seeds on either side is not tested. "
+        "Avg is tested on per-seed averages over the sequences."
+    )
 
 
 def relative_cells(cells: list[Cell], base: list[Cell], style: Style) -> list[Cell]:
@@ -305,7 +363,7 @@ def relative_cells(cells: list[Cell], base: list[Cell], style: Style) -> list[Ce
     for cell, ref in zip(cells[:-1], base[:-1], strict=True):
         if cell.kind == "num" and ref.kind == "num" and ref.mean:
             pairs.append((cell.mean, ref.mean))
-            out.append(_ratio_cell(cell.mean / ref.mean, style))
+            out.append(replace(_ratio_cell(cell.mean / ref.mean, style), p_value=cell.p_value, noise=cell.noise))
         elif "lost" in (cell.kind, ref.kind):
             out.append(Cell("lost"))
         elif "failed" in (cell.kind, ref.kind):
@@ -319,6 +377,8 @@ def relative_cells(cells: list[Cell], base: list[Cell], style: Style) -> list[Ce
         cell = _ratio_cell(ratio, style)
         if len(pairs) < len(out):
             cell = replace(cell, note=f"{len(pairs)}/{len(out)} seqs", partial=True)
+        elif cells[-1].kind == "num":
+            cell = replace(cell, p_value=cells[-1].p_value, noise=cells[-1].noise)
         out.append(cell)
     else:
         out.append(average_cell(out))
@@ -354,9 +414,9 @@ def _relative_block(
                 rel = [Cell("ref")] * len(cells)
             else:
                 rel = relative_cells(cells, measured[baseline.for_variant(variant)], style)
-        rows.append(Row(row.label, rel, paper=row.paper))
+        rows.append(Row(row.label, rel, paper=row.paper, variant=row.variant))
     decimals = 1 if style == "percent" else 2
-    return Block(title, None, style, decimals, rows)
+    return Block(title, None, style, decimals, rows, key=source.key)
 
 
 @dataclass(frozen=True)
@@ -396,8 +456,11 @@ def pick_baseline(found: list[Variant], baseline: str) -> tuple[Baseline | None,
     )
 
 
-def accuracy_table(runs: pd.DataFrame, dataset: str, paper: pd.DataFrame | None = None) -> Table:
-    """Table I/II layout: ATE, PSNR, SSIM, LPIPS blocks of method rows; sequences plus Avg."""
+def accuracy_table(
+    runs: pd.DataFrame, dataset: str, paper: pd.DataFrame | None = None, baseline: str = "none"
+) -> Table:
+    """Table I/II layout: ATE, PSNR, SSIM, LPIPS blocks of method rows; sequences plus Avg. Each
+    cell is tested against the baseline's (``mark_noise``)."""
     seqs = sequences(runs, dataset)
     found = variants(runs)
     notes = [MARKS_NOTE]
@@ -407,7 +470,13 @@ def accuracy_table(runs: pd.DataFrame, dataset: str, paper: pd.DataFrame | None 
         notes.append("(paper) rows: the figures printed in the Pocket-SLAM paper, not bold-ranked.")
         if prows.recomputed_avg:
             notes.append("Paper Avg recomputed over the sequences shown.")
-    blocks = [_metric_block(spec, runs, seqs, found, prows)[0] for spec in ACCURACY_METRICS]
+    base, _ = pick_baseline(found, baseline)
+    blocks = []
+    for spec in ACCURACY_METRICS:
+        block, cells, _ = _metric_block(spec, runs, seqs, found, prows)
+        mark_noise(block, cells, base)
+        blocks.append(block)
+    notes.append(seed_note(blocks))
     caption = f"Tracking and rendering accuracy on {dataset_name(dataset)}."
     return Table("accuracy", dataset, [*seqs, AVG], blocks, caption, notes)
 
@@ -439,7 +508,13 @@ def performance_table(
         warnings.append(f"{dataset}: {warning}")
     mem, mem_cells, mem_paper = _metric_block(MEMORY, runs, seqs, found, prows)
     fps, fps_cells, fps_paper = _metric_block(FPS, runs, seqs, found, prows)
-    churn = [_metric_block(spec, runs, seqs, found, None)[0] for spec in GAUSSIANS]
+    mark_noise(mem, mem_cells, base)
+    mark_noise(fps, fps_cells, base)
+    churn = []
+    for spec in GAUSSIANS:
+        block, cells, _ = _metric_block(spec, runs, seqs, found, None)
+        mark_noise(block, cells, base)
+        churn.append(block)
     notes.append(
         "Gaussians at end / Peak Gaussians: the map's count after the last keyframe and its largest count "
         "after any keyframe; fewer than the baseline's means pruning shrank the map, not only fed re-seeding."
@@ -458,6 +533,7 @@ def performance_table(
         warnings.append(f"{dataset}: no runs of baseline strategy '{baseline}', relative rows left out")
         notes.append(f"No runs of baseline strategy '{baseline}': relative rows left out.")
     blocks += churn
+    notes.append(seed_note(blocks))
     caption = f"Peak memory and speed on {dataset_name(dataset)}."
     return Table("performance", dataset, [*seqs, AVG], blocks, caption, notes), warnings
 
@@ -521,7 +597,7 @@ def build_tables(
     for dataset in sorted(set(done["dataset"])):
         ds = done[done["dataset"] == dataset]
         perf, warns = performance_table(ds, dataset, paper, baseline)
-        for table in (accuracy_table(ds, dataset, paper), perf):
+        for table in (accuracy_table(ds, dataset, paper, baseline), perf):
             kept = select_metrics(table, metrics)
             if kept is not None:
                 tables.append(kept)
