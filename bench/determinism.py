@@ -37,8 +37,8 @@ MODES: tuple[str, ...] = ("strict", "fast")
 # What a repeat may change even when deterministic: wall-clock times and process memory peaks.
 # Everything else in metrics.json's "metrics" block and keyframes.csv must repeat exactly.
 VOLATILE_METRICS: frozenset[str] = frozenset({
-    "slam_wall_s", "refine_s", "fps", "phase_s", "cpu_rss_peak_mib", "torch_live_peak_mib",
-    "cuda_alloc_peak_mib", "cuda_reserved_peak_mib", "peak_mem_mib",
+    "slam_wall_s", "warmup_s", "refine_s", "eval_s", "wall_s", "fps", "phase_s", "cpu_rss_peak_mib",
+    "torch_live_peak_mib", "cuda_alloc_peak_mib", "cuda_reserved_peak_mib", "peak_mem_mib",
 })  # fmt: skip
 VOLATILE_KEYFRAME_COLUMNS: frozenset[str] = frozenset({
     "track_s", "map_s", "prune_s", "cpu_rss_peak_mib", "torch_live_peak_mib", "cuda_alloc_peak_mib",

@@ -42,8 +42,9 @@ def write_run(
     }  # fmt: skip
     # what the real harness adds beside the documented metrics (bench/run.py)
     values.update(
-        peak_mem_source="torch_live", ate_mean_m=0.09, ate_max_m=0.2, ate_max_diff_s=0.01, ate_frames=[0, 19],
-        path_length_m=4.1, phase_s={"track": 10.0, "map": 8.0}, memory_method={"cpu_rss": "psutil", "torch_live": True},
+        peak_mem_source="torch_live", ate_mean_m=0.09, ate_max_m=0.2, ate_max_diff_s=0.01,
+        ate_first_frame=0, ate_last_frame=19, path_length_m=4.1, phase_s={"track": 10.0, "map": 8.0},
+        memory_method={"cpu_rss": "psutil", "torch_live": True},
         keep_ratio=keep_ratio,
     )  # fmt: skip
     values.update(metrics)
