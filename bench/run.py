@@ -80,12 +80,14 @@ def resolve_device(name: str) -> torch.device:
 
 def run_keys(cfg: DictConfig) -> dict[str, Any]:
     strategy = cfg.get("strategy")
+    name = strategy.name if strategy else "none"
     return {
-        "strategy": strategy.name if strategy else "none",
+        "strategy": name,
         "dataset": cfg.dataset.name,
         "seq": _seq_name(cfg),
         "seed": int(cfg.seed),
-        "keep_ratio": float(cfg.prune.keep_ratio) if strategy else None,  # meaningless without pruning
+        # meaningless without pruning, so null for `none` however it was chosen (implicit or +strategy=none)
+        "keep_ratio": None if name == "none" else float(cfg.prune.keep_ratio),
         "slam_preset": str(cfg.slam.get("name", "default")),  # runs of different presets never pool
     }
 
