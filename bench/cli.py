@@ -13,6 +13,7 @@ bad one is recorded ``failed`` (``hydra_plugins/pocketbench_sweeper``) while the
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import re
 import sys
@@ -27,6 +28,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from bench.conf import CONF_DIR
+from bench.config import describe_error, register_configs
 from bench.errors import BenchError, ConfigError, StrategyError
 from bench.registry import unknown_name_message
 from bench.summary import run_table
@@ -47,6 +49,7 @@ HELP_GROUPS: tuple[str, ...] = ("dataset", "slam", "strategy", "experiment", "hy
 # hydra/launcher=submitit_local either way); Hydra 1.3 still validates it against that schema and
 # warns, at length, that it will stop doing so.
 warnings.filterwarnings("ignore", message=r"(?s).*is validated against ConfigStore schema with the same name")
+register_configs()  # the schemas bench/conf/*.yaml build on, before Hydra composes anything
 
 
 def strategy_names() -> list[str]:
@@ -200,7 +203,8 @@ def composition_error(exc: Exception, overrides: list[str]) -> str:
     """Hydra's multi-line composition failure as our one line: key, expected, found."""
     from omegaconf.errors import OmegaConfBaseException
 
-    cause = exc.__cause__ if isinstance(exc.__cause__, OmegaConfBaseException) else None
+    cause = exc.__cause__ or exc.__context__
+    cause = cause if isinstance(cause, OmegaConfBaseException) else None
     text = str(exc).strip()
     missing = re.match(r"(?:In '[^']*': )?Could not (?:find|load) '([^'/]+)/([^']+)'", text)
     if missing:
@@ -216,12 +220,29 @@ def composition_error(exc: Exception, overrides: list[str]) -> str:
             known = _known_keys(parent, [o for o in overrides if o is not bad])
             return (f"unknown setting '{key}'; {parent or 'the config'} has: {known}; "
                     f"add a new key with +{bad.lstrip('+~') if bad else key + '=VALUE'}")
-        conv = re.match(r"Value '(.*)' (?:of type '\w+' )?could not be converted to (\w+)", first)
+        owner = getattr(cause, "object_type", None)
+        if "not in '" in first and owner is not None and dataclasses.is_dataclass(owner):  # a typed schema's key
+            where = re.match(r"In '([^']+)'", text)
+            return (f"{where[1]}: " if where else "") + describe_error(cause)
+        conv = re.match(r"Value '(.*?)' (?:of type '\w+' )?could not be converted to (\w+)", first) or re.match(
+            r"Value '(.*?)' is not a valid (bool)", first)
         if conv:
-            kind = {"Integer": "an integer", "Float": "a number", "Boolean": "true or false"}.get(conv[2], conv[2])
-            return f"{key}: expected {kind}, found {conv[1]!r}"
+            from bench.validate import expected
+
+            kind = {"Integer": "an integer", "Float": "a number", "Boolean": "true or false", "bool": "true or false"}
+            what = expected(key) or kind.get(conv[2], conv[2])
+            named = _strategy_param(key, overrides)
+            return f"{named or key}: expected {what}, found {conv[1]!r}"
         return f"{key}: {first[:1].lower()}{first[1:]}" if key else first
     return text.splitlines()[0]
+
+
+def _strategy_param(key: str, overrides: list[str]) -> str | None:
+    """``strategy 'NAME' parameter X`` for ``strategy.params.X``, as the strategy's own checks say it."""
+    if not key.startswith("strategy.params."):
+        return None
+    name = _value(overrides, "strategy")
+    return f"strategy '{name}' parameter {key.removeprefix('strategy.params.')}" if name else None
 
 
 def _known_keys(parent: str, overrides: list[str]) -> str:
@@ -276,7 +297,7 @@ def _hydra_main(cfg: DictConfig) -> None:
     multirun = hc.mode == RunMode.MULTIRUN
     t0 = time.perf_counter()
     try:
-        result = run(cfg, out_dir=cfg.get("out_dir") or hc.runtime.output_dir)
+        result = run(cfg, out_dir=cfg.out_dir or hc.runtime.output_dir)
     except Interrupted as exc:  # recorded as interrupted; a stopped sweep stops too
         print(f"error: {exc}", file=sys.stderr)
         sys.exit(exc.exit_code)

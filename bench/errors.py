@@ -27,5 +27,9 @@ class MetricError(BenchError):
     """A metric cannot be computed from the inputs it was given."""
 
 
+class ReportError(BenchError):
+    """Report inputs are missing or malformed (no run dirs, bad metrics.json, bad arguments)."""
+
+
 class TrackingLost(BenchError):
     """Tracking diverged; the run ends with status ``lost`` and keeps its partial results."""

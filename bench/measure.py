@@ -23,7 +23,7 @@ measured on this machine.
       installed). c10's CPU allocator then reports each alloc/free (+/- bytes) from C++; the session
       is cycled at each window end, and the peak is the maximum running sum in time order after
       the window's start mark (two odd-sized allocations). Cost: a C++ append per allocation, and
-      per window end about 1 ms for the stop/restart plus about 1 us per recorded event. Kineto
+      per window end the stop/restart plus a small cost per recorded event. Kineto
       prints a line or two per stop; fd 2 is silenced for the duration of that call only. Blocks
       allocated before the probe are unknown to it; c10 warns once when one is freed.
     * ``"dispatch-mode"`` (fallback when kineto is unavailable or another profiler is running):
@@ -31,17 +31,11 @@ measured on this machine.
       them through weakref callbacks. Public API, but a Python call per aten op, and blind to
       kernel-internal temporaries.
 
-    Measured with ``benchmarks/probe_overhead.py`` (Adam on a 100k-Gaussian toy loss: ~170 aten ops
-    of [100k, 3] tensors per step including backward, 4 windows of 5 steps, 1 thread, on a shared
-    2-core CPU whose run-to-run spread is 10-20 %; interleaved runs, medians of 9), wall-time cost
-    of the whole probe: ``profiler-memory`` +4 to +7 % (about 3 % with 20-step windows),
-    ``dispatch-mode`` +16 to +19 %, RSS only (``torch_live=False``) 0 to +2 %. The profiler cost is
-    about 2 us per alloc/free event (kineto's stop-time processing 1.2 us, Python event objects
-    0.7 us, our parse 0.3 us), i.e. about 4 us per allocating op, plus about 1.5 ms per window: it
-    shrinks as ops get larger. It is at, not under, the 5 % goal on this small-op toy; pass
-    ``torch_live=False`` to skip it (also when running ``torch.profiler`` yourself: only one
-    profiler can be active). On CUDA devices the figure is ``None``: the CUDA allocator's own peak
-    (below) is the exact equivalent there and costs nothing.
+    The overhead of each method is measured by ``benchmarks/probe_overhead.py`` (figures in the
+    README and the issue notes, not here): a cost per alloc/free event plus a fixed cost per window,
+    so it shrinks as ops get larger. Pass ``torch_live=False`` to skip it (also when running
+    ``torch.profiler`` yourself: only one profiler can be active). On CUDA devices the figure is
+    ``None``: the CUDA allocator's own peak (below) is the exact equivalent there and costs nothing.
 
 ``cuda_alloc_peak_mib`` / ``cuda_reserved_peak_mib`` - ``torch.cuda.max_memory_allocated`` /
     ``max_memory_reserved`` after ``reset_peak_memory_stats`` at window start; ``None`` on CPU.
@@ -57,26 +51,18 @@ import sys
 import threading
 import time
 import weakref
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from bench.errors import ConfigError
+from bench.schema import MIB
 
-MIB = float(2**20)
 _STATUS = Path("/proc/self/status")
 _CLEAR_REFS = Path("/proc/self/clear_refs")
 _SAMPLE_PERIOD_S = 0.005
-
-
-def tensor_bytes(tensors: Iterable[torch.Tensor]) -> int:
-    """Exact payload bytes (``numel * element_size``) of the given tensors, e.g. the Gaussian state.
-
-    Views are counted by their own extent, not their storage's; pass each parameter once.
-    """
-    return int(sum(t.numel() * t.element_size() for t in tensors))
 
 
 # ---------------------------------------------------------------------------------------------

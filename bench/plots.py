@@ -1,4 +1,4 @@
-"""Per-run figures and arrays written beside metrics.json (the report makes cross-run ones)."""
+"""Per-run figures written beside metrics.json (the report makes cross-run ones)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
 
 def memory_timeline(path: Path, windows: list[dict[str, Any]], title: str = "") -> None:
@@ -40,19 +39,3 @@ def memory_timeline(path: Path, windows: list[dict[str, Any]], title: str = "") 
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-
-@torch.no_grad()
-def write_density(path: Path, system, est_c2w: list[torch.Tensor], seq) -> None:
-    """Histogram [H, W] of the final map's projected centres at the last keyframe's pose (paper Fig. 4)."""
-    if not system.keyframes:
-        return
-    kf = system.keyframes[-1]
-    out = system.render(kf.w2c)
-    m2 = out.means2d
-    ok = (out.depths > 0) & (m2[:, 0] >= 0) & (m2[:, 0] < system.W) & (m2[:, 1] >= 0) & (m2[:, 1] < system.H)
-    u = m2[ok, 0].long().cpu().numpy()
-    v = m2[ok, 1].long().cpu().numpy()
-    counts = np.zeros((system.H, system.W), dtype=np.int32)
-    np.add.at(counts, (v, u), 1)
-    np.savez_compressed(path, counts=counts, image=kf.rgb.cpu().numpy(), frame=kf.index)

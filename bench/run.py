@@ -1,5 +1,10 @@
 """``run(cfg) -> RunResult``: one SLAM run wired end to end, writing its run directory.
 
+The composed Hydra config is converted once, here (``bench.config.to_run_config``); everything
+below receives dataclasses. A run reads as its data flows: ``build`` opens the dataset and makes
+the strategy and the SLAM system, ``drive`` feeds it the frames and writes one ``keyframes.csv``
+row per keyframe window, ``finish`` refines, summarises memory, evaluates and plots.
+
 Everything a run learns is written as it goes: ``keyframes.csv`` rows are flushed per keyframe
 window and ``metrics.json`` is replaced atomically, so an interrupted or lost run keeps what
 it computed. A known failure (``BenchError``) becomes status ``failed`` with its one-line
@@ -22,39 +27,21 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from bench import provenance
-from bench.datasets import canonical_seq, open_sequence
+from bench import provenance, schema
+from bench.config import RunConfig, plain, to_run_config
+from bench.datasets import Sequence, canonical_seq, open_sequence
 from bench.determinism import repeatable
 from bench.errors import BenchError, ConfigError, TrackingLost
 from bench.measure import MemoryProbe, PhaseTimer
 from bench.progress import Phase
 from bench.record import record_failed, write_json
 from bench.slam.se3 import inverse
-from bench.slam.system import SlamConfig, System
-from bench.strategy import PruneConfig, load_strategy
+from bench.slam.system import FrameResult, System
+from bench.strategy import CheckedStrategy, Strategy, load_strategy
 from bench.validate import validate
 
 log = logging.getLogger(__name__)
 
-KEYFRAME_COLUMNS = [
-    "kf",
-    "frame",
-    "n_gaussians",
-    "n_masked",
-    "n_added",
-    "n_pruned",
-    "n_candidates",
-    "state_bytes",
-    "state_mib",
-    "cpu_rss_peak_mib",
-    "torch_live_peak_mib",
-    "cuda_alloc_peak_mib",
-    "cuda_reserved_peak_mib",
-    "track_s",
-    "map_s",
-    "prune_s",
-]
-MIB = 1024.0 * 1024.0
 # keys that change how a run is shown or stored, not what it computes
 _NOT_HASHED = ("progress", "out_dir", "resume")
 
@@ -72,38 +59,54 @@ def resolve_device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name.startswith("cuda") and not torch.cuda.is_available():
-        raise ConfigError(f"device '{name}' requested but cuda is not available; use device=cpu or device=auto")
+        raise ConfigError(f"device '{name}': expected cpu or auto on a machine without cuda, found no cuda device")
     if name != "cpu" and not name.startswith("cuda"):
-        raise ConfigError(f"device must be auto, cpu or cuda[:N], got '{name}'")
+        raise ConfigError(f"device: expected auto, cpu or cuda[:N], found '{name}'")
     return torch.device(name)
 
 
-def run_keys(cfg: DictConfig) -> dict[str, Any]:
-    strategy = cfg.get("strategy")
-    name = strategy.name if strategy else "none"
+def run_keys(cfg: RunConfig) -> dict[str, Any]:
+    """The ``run`` block of metrics.json: what identifies this run in a report."""
+    prunes = cfg.strategy is not None and cfg.strategy.name != "none"
     return {
-        "strategy": name,
-        "dataset": cfg.dataset.name,
-        "seq": _seq_name(cfg),
-        "seed": int(cfg.seed),
-        # meaningless without pruning, so null for `none` however it was chosen (implicit or +strategy=none)
-        "keep_ratio": None if name == "none" else float(cfg.prune.keep_ratio),
-        "slam_preset": str(cfg.slam.get("name", "default")),  # runs of different presets never pool
+        "strategy": cfg.strategy.name if cfg.strategy is not None else "none",
+        "dataset": dataset_name(cfg.dataset),
+        "seq": canonical_seq(dataset_name(cfg.dataset), sequence_name(cfg)),
+        "seed": cfg.seed,
+        "keep_ratio": cfg.prune.keep_ratio if prunes else None,  # no pruning, no ratio
+        "slam_preset": cfg.slam.name,  # runs of different presets never pool
     }
 
 
-def _seq_name(cfg: DictConfig) -> str | None:
-    seq = cfg.get("seq")
-    if seq is None:
-        seq = cfg.dataset.get("seq")
-    if seq is None:
-        seq = cfg.dataset.get("default_seq", cfg.dataset.get("seed"))
-    return canonical_seq(str(cfg.dataset.name), seq)
+def _keys_best_effort(cfg: DictConfig) -> dict[str, Any]:
+    """Run keys of a config that failed validation: whatever of them is readable."""
+    try:
+        return run_keys(to_run_config(cfg))
+    except BenchError:  # the bad value may be one of the keys (seed=abc): record the names as given
+        strategy = cfg.strategy.name if cfg.strategy is not None else "none"
+        return {"strategy": str(strategy), "dataset": dataset_name(cfg.dataset),
+                "seq": None if cfg.seq is None else str(cfg.seq), "seed": None, "keep_ratio": None,
+                "slam_preset": str(cfg.slam.name)}
 
 
-def _hashable(cfg: DictConfig) -> dict[str, Any]:
-    plain = OmegaConf.to_container(cfg, resolve=True)
-    return {k: v for k, v in plain.items() if k not in _NOT_HASHED}
+def dataset_name(dataset: Any) -> str:
+    return str(dataset["name"] if isinstance(dataset, dict) else dataset.name)  # a plugin's plain dict, or typed
+
+
+def sequence_name(cfg: RunConfig) -> str | None:
+    """The sequence as written (``seq=``), else the dataset's own default; None if it has none."""
+    if cfg.seq is not None:
+        return str(cfg.seq)
+    ds = cfg.dataset
+    if isinstance(ds, dict):
+        return None if ds.get("seq") is None else str(ds["seq"])
+    default = ds.default_sequence() if hasattr(ds, "default_sequence") else None
+    return None if default is None else str(default)
+
+
+def _config_hash(cfg: DictConfig) -> str:
+    tree = plain(cfg)
+    return provenance.config_hash({k: v for k, v in tree.items() if k not in _NOT_HASHED})
 
 
 def _finite_or_none(x: float | None) -> float | None:
@@ -112,7 +115,7 @@ def _finite_or_none(x: float | None) -> float | None:
 
 def completed(out_dir: Path, cfg_hash: str) -> dict[str, Any] | None:
     """The stored metrics if ``out_dir`` holds a finished run (ok or lost) of the same config."""
-    path = out_dir / "metrics.json"
+    path = out_dir / schema.METRICS_FILE
     try:
         stored = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError):
@@ -137,228 +140,241 @@ def make_out_dir(out: Path) -> None:
         raise ConfigError(f"output dir: expected a writable directory at {out}, found: {exc.strerror or exc}") from None
 
 
-def _keys_best_effort(cfg: DictConfig) -> dict[str, Any]:
-    """Run keys of a config that failed validation: whatever of them is readable."""
-    try:
-        return run_keys(cfg)
-    except Exception:  # the bad value is one of the keys (seed=abc): record the rest as given
-        strategy = cfg.get("strategy")
-        return {"strategy": strategy.get("name") if strategy else "none", "dataset": cfg.dataset.get("name"),
-                "seq": None if cfg.get("seq") is None else str(cfg.get("seq")), "seed": None, "keep_ratio": None}
-
-
-def _section(cfg: DictConfig, key: str, cls: type) -> dict[str, Any]:
-    """``cfg.<key>`` as plain keyword arguments for dataclass ``cls``; unknown keys are a ConfigError."""
-    raw = OmegaConf.to_container(cfg[key], resolve=True)
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(raw) - names)
-    if unknown:
-        raise ConfigError(f"{key} has no setting {', '.join(unknown)}; expected one of: {', '.join(sorted(names))}")
-    return raw
-
-
-def slam_config(cfg: DictConfig) -> SlamConfig:
-    return SlamConfig(**{**_section(cfg, "slam", SlamConfig), "seed": int(cfg.seed)})
-
-
-def prune_config(cfg: DictConfig) -> PruneConfig:
-    return PruneConfig(**_section(cfg, "prune", PruneConfig))
-
-
-def run(cfg: DictConfig, out_dir: str | Path | None = None) -> RunResult:
+def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None) -> RunResult:
     """Run one (strategy, dataset, seq, seed) combination and write its run directory."""
-    out = Path(out_dir or cfg.get("out_dir") or ".").resolve()
+    if isinstance(cfg, RunConfig):
+        cfg = OmegaConf.structured(cfg)
+    out = Path(out_dir or cfg.out_dir or ".").resolve()
+    metrics_path = out / schema.METRICS_FILE
     try:
         validate(cfg)
+        conf = to_run_config(cfg)  # the one conversion: below here only dataclasses travel
     except ConfigError as exc:  # in a sweep the job is recorded; a single run was refused by the CLI already
         make_out_dir(out)
         record_failed(out, str(exc), _keys_best_effort(cfg))
         return RunResult("failed", out, {}, str(exc))
     make_out_dir(out)
-    cfg_hash = provenance.config_hash(_hashable(cfg))
-    keys = {**run_keys(cfg), "config_hash": cfg_hash}
-    if cfg.get("resume", True):
+    cfg_hash = _config_hash(cfg)
+    if conf.resume:
         stored = completed(out, cfg_hash)
         if stored is not None:
             log.info("skipping %s: completed results with config hash %s exist", out, cfg_hash)
             return RunResult(stored["status"], out, stored.get("metrics", {}), stored.get("error"), skipped=True)
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     record: dict[str, Any] = {
-        "status": "running", "error": None, "run": keys, "determinism": {}, "metrics": {}, "provenance": {},
+        "status": "running", "error": None, "run": {**run_keys(conf), "config_hash": cfg_hash}, "determinism": {},
+        "metrics": {}, "provenance": {},
     }  # fmt: skip
-    write_json(out / "metrics.json", record)
+    write_json(metrics_path, record)
     try:
-        device = resolve_device(str(cfg.device))
-        with repeatable(int(cfg.seed), cfg.get("threads"), str(cfg.get("determinism", "strict")), device) as det:
+        device = resolve_device(conf.device)
+        with repeatable(conf.seed, conf.threads, conf.determinism, device) as det:  # seeds, threads, kernels
             record["determinism"] = det
             record["provenance"] = provenance.collect(device)  # after the thread count is set
-            status, error, metrics = _execute(cfg, out, device, record)
+            status, error, metrics = _execute(conf, out, device, record)
     except BenchError as exc:
         status, error, metrics = "failed", str(exc), record["metrics"]
     except Exception as exc:  # unexpected: record it so the sweep goes on, then re-raise for the traceback
         record.update(status="failed", error=f"{type(exc).__name__}: {exc}".splitlines()[0])
-        write_json(out / "metrics.json", record)
+        write_json(metrics_path, record)
         raise
     record.update(status=status, error=error, metrics=metrics)
-    write_json(out / "metrics.json", record)
+    write_json(metrics_path, record)
     return RunResult(status, out, metrics, error)
 
 
-def _execute(cfg: DictConfig, out: Path, device: torch.device, record: dict[str, Any]):
+def _execute(cfg: RunConfig, out: Path, device: torch.device, record: dict[str, Any]):
     t_start = time.perf_counter()
-    strategy_cfg = cfg.get("strategy")
-    name = strategy_cfg.name if strategy_cfg else "none"
-    params = (
-        OmegaConf.to_container(strategy_cfg.params, resolve=True) if strategy_cfg and "params" in strategy_cfg else {}
-    )
-    strategy = load_strategy(name, params or {})
-    ds_cfg = OmegaConf.to_container(cfg.dataset, resolve=True)
-    if cfg.get("seq") is not None:
-        ds_cfg["seq"] = str(cfg.seq)
-    seq = open_sequence(cfg.dataset.name, ds_cfg)
-    n_frames = len(seq)
-    if cfg.get("max_frames"):
-        n_frames = min(n_frames, int(cfg.max_frames))
-    if n_frames < 2:
-        raise ConfigError(f"a run needs at least 2 frames, the sequence has {n_frames}")
+    parts = build(cfg, device)
+    record["metrics"] = metrics = {"num_frames": 0, "num_keyframes": 0}
+    drive = drive_frames(cfg, parts, out / schema.KEYFRAMES_FILE, metrics)
+    metrics.update(finish(cfg, parts, drive, out, device))
+    metrics["wall_s"] = round(time.perf_counter() - t_start, 3)  # the whole run: loading to figures
+    return drive.status, drive.error, metrics
 
+
+# ---------------------------------------------------------------------------------------------- build
+
+
+@dataclass
+class Parts:
+    """What ``build`` makes and the later steps use."""
+
+    seq: Sequence
+    n_frames: int  # frames to process (max_frames applied)
+    strategy: Strategy
+    system: System
+    timer: PhaseTimer
+    probe: MemoryProbe
+
+
+def build(cfg: RunConfig, device: torch.device) -> Parts:
+    """Open the sequence, make the strategy and the SLAM system (seeded by ``repeatable``)."""
+    name = cfg.strategy.name if cfg.strategy else "none"
+    strategy = CheckedStrategy(load_strategy(name, cfg.strategy.params if cfg.strategy else None), name)
+    dataset = cfg.dataset
+    if cfg.seq is not None:
+        is_plain = isinstance(dataset, dict)
+        dataset = {**dataset, "seq": cfg.seq} if is_plain else dataclasses.replace(dataset, seq=cfg.seq)
+    seq = open_sequence(dataset_name(dataset), dataset)
+    n_frames = min(len(seq), cfg.max_frames) if cfg.max_frames else len(seq)
+    if n_frames < 2:
+        raise ConfigError(f"a run needs at least 2 frames: expected >= 2, found {n_frames}")
     timer = PhaseTimer(device)
-    probe = MemoryProbe(device, torch_live=bool(cfg.memory.torch_live))
-    system = System(
-        slam_config(cfg), seq.K, seq.height, seq.width, strategy, prune_config(cfg), device, timer=timer
-    )
-    metrics: dict[str, Any] = {"num_frames": 0, "num_keyframes": 0}
-    record["metrics"] = metrics
-    timestamps, gt_c2w = [], []
-    windows: list[dict[str, Any]] = []
-    status, error = "ok", None
-    show = bool(cfg.get("progress", True))
-    bar = Phase("frames", n_frames, "frame", show)
-    warmup = int(cfg.get("warmup_frames", 1))
-    t_loop = t_warmup = 0.0
-    between = {"n_pruned": 0, "n_candidates": 0, "prune_s": 0.0}  # prune.every=frame: frames since the last keyframe
-    probe.start_window()
-    with open(out / "keyframes.csv", "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=KEYFRAME_COLUMNS)
+    probe = MemoryProbe(device, torch_live=cfg.memory.torch_live)  # before the SLAM state is allocated
+    system = System(cfg.slam, seq.K, seq.height, seq.width, strategy, cfg.prune, device, timer=timer)
+    return Parts(seq, n_frames, strategy, system, timer, probe)
+
+
+# ---------------------------------------------------------------------------------------------- drive
+
+
+@dataclass
+class Drive:
+    """What the frame loop leaves behind."""
+
+    status: str = "ok"
+    error: str | None = None
+    timestamps_s: list[float] = field(default_factory=list)
+    gt_c2w: list[torch.Tensor | None] = field(default_factory=list)
+    windows: list[dict[str, Any]] = field(default_factory=list)  # the keyframes.csv rows
+    loop_s: float = 0.0  # SLAM wall time after the warm-up frames
+    warmup_s: float = 0.0  # the warm-up frames' time, left out of loop_s and fps
+
+
+def drive_frames(cfg: RunConfig, parts: Parts, csv_path: Path, metrics: dict[str, Any]) -> Drive:
+    """Feed every frame to the system; one flushed keyframes.csv row per keyframe window."""
+    system, device = parts.system, parts.system.device
+    drive = Drive()
+    warmup = cfg.warmup_frames
+    bar = Phase("frames", parts.n_frames, "frame", cfg.progress)
+    between = dict.fromkeys(("n_pruned", "n_candidates", "prune_s"), 0)  # prune.every=frame: since the last keyframe
+    parts.probe.start_window()
+    with open(csv_path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=schema.KEYFRAME_COLUMNS)
         writer.writeheader()
         fh.flush()
         try:
-            for i in range(n_frames):
-                frame = seq[i]  # loading is not SLAM time
-                if device.type == "cuda":
-                    torch.cuda.synchronize(device)
+            for i in range(parts.n_frames):
+                frame = parts.seq[i]  # loading is not SLAM time
+                _sync(device)
                 t0 = time.perf_counter()
                 res = system.process(frame)
-                if device.type == "cuda":
-                    torch.cuda.synchronize(device)
+                _sync(device)
                 if i >= warmup:
-                    t_loop += time.perf_counter() - t0
+                    drive.loop_s += time.perf_counter() - t0
                 else:
-                    t_warmup += time.perf_counter() - t0
-                timestamps.append(frame.timestamp_s)
-                gt_c2w.append(frame.gt_c2w)
+                    drive.warmup_s += time.perf_counter() - t0
+                drive.timestamps_s.append(frame.timestamp_s)
+                drive.gt_c2w.append(frame.gt_c2w)
                 metrics["num_frames"] = i + 1
                 if not res.is_keyframe:
                     between = {k: v + getattr(res, k) for k, v in between.items()}
                 else:
-                    mem = probe.end_window()
-                    state_bytes = system.map.state_bytes()
-                    row = {
-                        "kf": res.keyframe_index,
-                        "frame": frame.index,
-                        "n_gaussians": len(system.map),
-                        "n_masked": strategy.masked_count(system.map, system.map.state),
-                        "n_added": res.n_added,
-                        "n_pruned": res.n_pruned + between["n_pruned"],
-                        "n_candidates": res.n_candidates + between["n_candidates"],
-                        "state_bytes": state_bytes,
-                        "state_mib": round(state_bytes / MIB, 4),
-                        **{k: _round(v) for k, v in mem.items()},
-                        "track_s": round(res.track_s, 4),
-                        "map_s": round(res.map_s, 4),
-                        "prune_s": round(res.prune_s + between["prune_s"], 4),
-                    }
+                    row = keyframe_row(parts, res, frame.index, between)
                     between = dict.fromkeys(between, 0)
                     writer.writerow(row)
                     fh.flush()
-                    windows.append(row)
-                    metrics["num_keyframes"] = len(windows)
-                    probe.start_window()
-                bar.update(1, gaussians=len(system.map), fps=f"{(i + 1 - warmup) / max(t_loop, 1e-9):.2f}")
+                    drive.windows.append(row)
+                    metrics["num_keyframes"] = len(drive.windows)
+                    parts.probe.start_window()
+                bar.update(1, gaussians=len(system.map), fps=f"{(i + 1 - warmup) / max(drive.loop_s, 1e-9):.2f}")
         except TrackingLost as exc:
-            status, error = "lost", str(exc)
+            drive.status, drive.error = "lost", str(exc)
             bar.close(note=f"lost: {exc}")
             log.warning("%s", exc)
         finally:
             bar.close()
-            probe.close()
-    n_done = metrics["num_frames"]
-    metrics["slam_wall_s"] = round(t_loop, 3)
-    metrics["warmup_s"] = round(t_warmup, 3)  # the first frame(s), left out of slam_wall_s and fps
-    if system.cfg.refine_iters > 0:  # after the loop: not SLAM time, not in fps
-        with timer.phase("refine"), Phase("refine", system.cfg.refine_iters, "iteration", show) as refine_bar:
-            system.refine(system.cfg.refine_iters, on_step=refine_bar.update)
-        metrics["refine_s"] = round(timer.totals()["refine"], 3)
-    metrics["fps"] = round((n_done - warmup) / t_loop, 4) if t_loop > 0 and n_done > warmup else None
-    # per-phase seconds of the frame loop, warm-up frames included: they sum to about
-    # slam_wall_s + warmup_s (less the frame handling outside the phases); refinement is refine_s
-    metrics["phase_s"] = {k: round(v, 3) for k, v in timer.totals().items() if k != "refine"}
-    metrics["memory_method"] = {"cpu_rss": probe.rss_method, "torch_live": bool(cfg.memory.torch_live)}
-    metrics.update(_memory_summary(windows, device))
-    metrics["gaussians_final"] = len(system.map)
-    # churn: did pruning shrink the map, or only feed re-seeding?
-    metrics["gaussians_added_total"] = sum(w["n_added"] for w in windows)
-    metrics["gaussians_pruned_total"] = sum(w["n_pruned"] for w in windows)
-    metrics["prune_candidates_total"] = sum(w["n_candidates"] for w in windows)
-    metrics["keep_ratio"] = run_keys(cfg)["keep_ratio"]  # as in run.keep_ratio: null when nothing is pruned
-    est_c2w = [inverse(p.detach().double().cpu()) for p in system.poses[:n_done]]
-    t_eval = time.perf_counter()
-    metrics.update(_evaluate(cfg, out, seq, system, est_c2w, timestamps, gt_c2w, device))
-    metrics["eval_s"] = round(time.perf_counter() - t_eval, 3)  # ATE, rendering, PSNR/SSIM/LPIPS
-    from bench.plots import memory_timeline, write_density
+            parts.probe.close()
+    return drive
 
-    memory_timeline(out / "memory.png", windows, title=f"{run_keys(cfg)['strategy']} on {seq.name}")
-    write_density(out / "density.npz", system, est_c2w, seq)
-    metrics["wall_s"] = round(time.perf_counter() - t_start, 3)  # the whole run: loading to figures
-    return status, error, metrics
+
+def keyframe_row(parts: Parts, res: FrameResult, frame_index: int, between: dict[str, Any]) -> dict[str, Any]:
+    """One keyframes.csv row: closes the memory window the keyframe ends; ``between`` holds the
+    pruning of the frames since the previous keyframe (``prune.every=frame``)."""
+    mem = parts.probe.end_window()
+    system = parts.system
+    state_bytes = system.map.state_bytes()
+    return {
+        "kf": res.keyframe_index,
+        "frame": frame_index,
+        "n_gaussians": len(system.map),
+        "n_masked": parts.strategy.masked_count(system.map, system.map.state),
+        "n_added": res.n_added,
+        "n_pruned": res.n_pruned + between["n_pruned"],
+        "n_candidates": res.n_candidates + between["n_candidates"],
+        "state_bytes": state_bytes,
+        "state_mib": round(state_bytes / schema.MIB, 4),
+        **{k: _round(v) for k, v in mem.items()},
+        "track_s": round(res.track_s, 4),
+        "map_s": round(res.map_s, 4),
+        "prune_s": round(res.prune_s + between["prune_s"], 4),
+    }
+
+
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
 
 
 def _round(v: float | None) -> float | None:
     return None if v is None else round(float(v), 3)
 
 
-def _memory_summary(windows: list[dict[str, Any]], device: torch.device) -> dict[str, Any]:
-    def peak(key: str) -> float | None:
-        vals = [w[key] for w in windows if w.get(key) is not None]
-        return max(vals) if vals else None
+# ---------------------------------------------------------------------------------------------- finish
 
-    summary = {
-        "gaussians_peak": peak("n_gaussians") or 0,
-        "state_peak_mib": peak("state_mib"),
-        "cpu_rss_peak_mib": peak("cpu_rss_peak_mib"),
-        "torch_live_peak_mib": peak("torch_live_peak_mib"),
-        "cuda_alloc_peak_mib": peak("cuda_alloc_peak_mib"),
-        "cuda_reserved_peak_mib": peak("cuda_reserved_peak_mib"),
-    }
-    # The headline figure: what the device must hold at once (the paper reads the CUDA allocator peak).
-    if device.type == "cuda":
-        summary["peak_mem_mib"], summary["peak_mem_source"] = summary["cuda_alloc_peak_mib"], "cuda_alloc"
-    elif summary["torch_live_peak_mib"] is not None:
-        summary["peak_mem_mib"], summary["peak_mem_source"] = summary["torch_live_peak_mib"], "torch_live"
-    else:
-        summary["peak_mem_mib"], summary["peak_mem_source"] = summary["cpu_rss_peak_mib"], "cpu_rss"
-    return summary
+
+def finish(cfg: RunConfig, parts: Parts, drive: Drive, out: Path, device: torch.device) -> dict[str, Any]:
+    """After the loop (none of it SLAM time): refine, summarise memory and time, evaluate, plot."""
+    system, timer = parts.system, parts.timer
+    n_done = len(drive.timestamps_s)
+    metrics: dict[str, Any] = {"slam_wall_s": round(drive.loop_s, 3), "warmup_s": round(drive.warmup_s, 3)}
+    if cfg.slam.refine_iters > 0:
+        with timer.phase("refine"), Phase("refine", cfg.slam.refine_iters, "iteration", cfg.progress) as bar:
+            system.refine(cfg.slam.refine_iters, on_step=bar.update)
+        metrics["refine_s"] = round(timer.totals()["refine"], 3)
+    warmup = cfg.warmup_frames
+    metrics["fps"] = round((n_done - warmup) / drive.loop_s, 4) if drive.loop_s > 0 and n_done > warmup else None
+    # per-phase seconds of the frame loop, warm-up frames included: they sum to about
+    # slam_wall_s + warmup_s (less the frame handling outside the phases); refinement is refine_s
+    metrics["phase_s"] = {k: round(v, 3) for k, v in timer.totals().items() if k != "refine"}
+    metrics["memory_method"] = {"cpu_rss": parts.probe.rss_method, "torch_live": cfg.memory.torch_live}
+    metrics.update(schema.memory_summary(drive.windows, device.type))
+    metrics["gaussians_final"] = len(system.map)
+    # churn: did pruning shrink the map, or only feed re-seeding?
+    metrics["gaussians_added_total"] = sum(w["n_added"] for w in drive.windows)
+    metrics["gaussians_pruned_total"] = sum(w["n_pruned"] for w in drive.windows)
+    metrics["prune_candidates_total"] = sum(w["n_candidates"] for w in drive.windows)
+    metrics["keep_ratio"] = run_keys(cfg)["keep_ratio"]  # as in run.keep_ratio: null when nothing is pruned
+    est_c2w = [inverse(p.detach().double().cpu()) for p in system.poses[:n_done]]
+    t_eval = time.perf_counter()
+    metrics.update(_evaluate(cfg, out, parts, est_c2w, drive, device))
+    metrics["eval_s"] = round(time.perf_counter() - t_eval, 3)  # ATE, rendering, PSNR/SSIM/LPIPS
+    from bench.plots import memory_timeline
+
+    memory_timeline(out / "memory.png", drive.windows, title=f"{run_keys(cfg)['strategy']} on {parts.seq.name}")
+    write_density(out / "density.npz", system)
+    return metrics
+
+
+@torch.no_grad()
+def write_density(path: Path, system: System) -> None:
+    """Histogram [H, W] of the final map's projected centres at the last keyframe's pose (paper Fig. 4)."""
+    if not system.keyframes:
+        return
+    kf = system.keyframes[-1]
+    out = system.render(kf.w2c)
+    m2 = out.means2d  # [N, 2] px
+    ok = (out.depths > 0) & (m2[:, 0] >= 0) & (m2[:, 0] < system.W) & (m2[:, 1] >= 0) & (m2[:, 1] < system.H)
+    u = m2[ok, 0].long().cpu().numpy()
+    v = m2[ok, 1].long().cpu().numpy()
+    counts = np.zeros((system.H, system.W), dtype=np.int32)
+    np.add.at(counts, (v, u), 1)
+    np.savez_compressed(path, counts=counts, image=kf.rgb.cpu().numpy(), frame=kf.index)
 
 
 def _evaluate(
-    cfg: DictConfig,
-    out: Path,
-    seq,
-    system: System,
-    est_c2w: list[torch.Tensor],
-    timestamps: list[float],
-    gt_c2w: list[torch.Tensor | None],
-    device: torch.device,
+    cfg: RunConfig, out: Path, parts: Parts, est_c2w: list[torch.Tensor], drive: Drive, device: torch.device
 ) -> dict[str, Any]:
     """ATE (evo), PSNR/SSIM (torchmetrics), LPIPS when weights exist; none of it is SLAM time."""
     from bench.metrics.image import image_metrics
@@ -369,30 +385,29 @@ def _evaluate(
     res: dict[str, Any] = {"ate_rmse_m": None, "psnr_db": None, "ssim": None, "lpips": None}
     if not est_c2w:
         return res
-    ts = np.asarray(timestamps)
+    ts = np.asarray(drive.timestamps_s)
     est = Trajectory.from_c2w(ts, torch.stack(est_c2w).numpy())
     write_tum(out / "traj_est.txt", est)
-    if all(g is not None for g in gt_c2w) and len(est_c2w) >= 3:
-        gt_world = torch.stack([g.double() for g in gt_c2w])
+    if all(g is not None for g in drive.gt_c2w) and len(est_c2w) >= 3:
+        gt_world = torch.stack([g.double() for g in drive.gt_c2w])
         gt_world = inverse(gt_world[0]).expand_as(gt_world) @ gt_world  # first camera = origin, like the estimate
         gt = Trajectory.from_c2w(ts, gt_world.numpy())
         write_tum(out / "traj_gt.txt", gt)
-        res.update(ate(est, gt, align=str(ev.ate_align), max_diff_s=float(ev.max_diff_s)))
+        res.update(ate(est, gt, align=ev.ate_align, max_diff_s=ev.max_diff_s))
         res["ate_first_frame"], res["ate_last_frame"] = 0, len(est_c2w) - 1  # inclusive, tracked-frame positions
         res["path_length_m"] = round(float(np.linalg.norm(np.diff(gt.positions_m, axis=0), axis=1).sum()), 4)
-        if ev.get("rpe"):
-            res.update(rpe(est, gt, align=str(ev.ate_align), max_diff_s=float(ev.max_diff_s)))
-    every = max(1, int(ev.every))
-    idx = list(range(0, len(est_c2w), every))
+        if ev.rpe:
+            res.update(rpe(est, gt, align=ev.ate_align, max_diff_s=ev.max_diff_s))
+    idx = list(range(0, len(est_c2w), max(1, ev.every)))
     preds, targets = [], []
-    with Phase("evaluate", len(idx), "frame", bool(cfg.get("progress", True))) as bar:
+    with Phase("evaluate", len(idx), "frame", cfg.progress) as bar:
         with torch.no_grad():
             for i in idx:
                 w2c = inverse(est_c2w[i]).float().to(device)
-                preds.append(system.render(w2c).color.clamp(0, 1).cpu())
-                targets.append(seq[i].rgb)
+                preds.append(parts.system.render(w2c).color.clamp(0, 1).cpu())
+                targets.append(parts.seq[i].rgb)
                 bar.update(1)
-        lp = LPIPS.from_weights(ev.get("lpips_weights"), device=device) if ev.get("lpips", True) else None
+        lp = LPIPS.from_weights(ev.lpips_weights, device=device) if ev.lpips else None
         img = image_metrics(preds, targets, lpips=lp)
     img.pop("num_frames", None)  # that count is res["eval_frames"]; metrics["num_frames"] is frames tracked
     res.update({k: _finite_or_none(v) if isinstance(v, float) else v for k, v in img.items()})

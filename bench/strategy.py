@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -96,12 +97,14 @@ class PruneConfig:
 
     def __post_init__(self) -> None:
         if not 0.0 < self.keep_ratio <= 1.0:
-            raise ConfigError(f"prune.keep_ratio must be in (0, 1], got {self.keep_ratio}")
+            raise ConfigError(f"prune.keep_ratio: expected a number in (0, 1], found {self.keep_ratio}")
         for name, allowed in (("target", PRUNE_TARGETS), ("every", PRUNE_EVERY), ("grad_source", GRAD_SOURCES)):
             if getattr(self, name) not in allowed:
-                raise ConfigError(f"prune.{name} must be one of {', '.join(allowed)}, got '{getattr(self, name)}'")
+                raise ConfigError(f"prune.{name}: expected one of {', '.join(allowed)}, found '{getattr(self, name)}'")
         if self.target == "absolute" and (not isinstance(self.n_target, int) or self.n_target < 0):
-            raise ConfigError(f"prune.target=absolute needs an integer prune.n_target >= 0, got {self.n_target!r}")
+            raise ConfigError(
+                f"prune.n_target: expected an integer >= 0 with prune.target=absolute, found {self.n_target!r}"
+            )
 
     @property
     def target_count(self) -> int | None:
@@ -154,22 +157,120 @@ def top_k_keep(score: torch.Tensor, candidates: torch.Tensor, k: int) -> torch.T
     return keep
 
 
+def is_int(value: object) -> bool:
+    """True for a real integer (bools are ints to Python, not to a config)."""
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def check(strategy: str, ok: bool, message: str) -> None:
+    """Hyperparameter check for a strategy's ``__post_init__``: one-line ``ConfigError`` unless ``ok``."""
+    if not ok:
+        raise ConfigError(f"strategy '{strategy}': {message}")
+
+
+def check_choice(strategy: str, field: str, value: object, allowed: tuple[str, ...]) -> None:
+    """One-line ``ConfigError`` unless ``value`` is one of ``allowed``."""
+    check(strategy, value in allowed, f"{field}: expected one of {', '.join(allowed)}, found {value!r}")
+
+
+class CheckedStrategy(Strategy):
+    """The core's side of the contract: forwards every hook and checks what comes back.
+
+    A keep mask must be a bool tensor [N] on the map's device, a render mask a floating [N], a loss
+    a scalar; anything else is a ``StrategyError`` naming the strategy, raised here rather than as
+    a shape error deep in the removal path. ``StrategyError``s raised inside a hook get the name too.
+    """
+
+    def __init__(self, strategy: Strategy, name: str) -> None:
+        self.inner, self.name = strategy, name
+        self.description = strategy.description
+
+    def _fail(self, hook: str, expected: str, found: str) -> StrategyError:
+        return StrategyError(f"strategy '{self.name}' {hook}: expected {expected}, found {found}")
+
+    def _call(self, hook: str, *args: Any) -> Any:
+        try:
+            return getattr(self.inner, hook)(*args)
+        except StrategyError as exc:
+            if f"'{self.name}'" in str(exc):
+                raise
+            raise StrategyError(f"strategy '{self.name}' {hook}: {exc}") from exc
+
+    def _tensor(self, hook: str, out: Any, n: int, kind: str) -> torch.Tensor | None:
+        if out is None:
+            return None
+        if not isinstance(out, torch.Tensor):
+            raise self._fail(hook, f"a {kind} tensor [{n}] or None", type(out).__name__)
+        ok_dtype = out.dtype == torch.bool if kind == "bool" else out.is_floating_point()
+        if not ok_dtype or tuple(out.shape) != (n,):
+            raise self._fail(hook, f"a {kind} tensor [{n}]", f"{out.dtype} {list(out.shape)}")
+        return out
+
+    def state_spec(self) -> dict[str, torch.dtype]:
+        spec = self._call("state_spec")
+        if not isinstance(spec, Mapping) or not all(isinstance(v, torch.dtype) for v in spec.values()):
+            raise self._fail("state_spec", "a dict of name -> torch.dtype", repr(spec))
+        return dict(spec)
+
+    def extra_params(self) -> dict[str, ParamSpec]:
+        params = self._call("extra_params")
+        if not isinstance(params, Mapping) or not all(isinstance(v, ParamSpec) for v in params.values()):
+            raise self._fail("extra_params", "a dict of name -> ParamSpec", repr(params))
+        return dict(params)
+
+    def on_tracking_step(self, ctx: TrackingContext) -> None:
+        self._call("on_tracking_step", ctx)
+
+    def render_mask(self, ctx: MappingContext) -> torch.Tensor | None:
+        return self._tensor("render_mask", self._call("render_mask", ctx), len(ctx.gaussians), "floating")
+
+    def masked_count(self, gaussians: GaussianMap, state: dict[str, torch.Tensor]) -> int:
+        count = self._call("masked_count", gaussians, state)
+        if not is_int(count) or not 0 <= count <= len(gaussians):
+            raise self._fail("masked_count", f"an integer in [0, {len(gaussians)}]", repr(count))
+        return count
+
+    def mapping_loss(self, ctx: MappingContext) -> torch.Tensor | None:
+        loss = self._call("mapping_loss", ctx)
+        if loss is not None and (not isinstance(loss, torch.Tensor) or loss.numel() != 1):
+            found = f"{loss.dtype} {list(loss.shape)}" if isinstance(loss, torch.Tensor) else type(loss).__name__
+            raise self._fail("mapping_loss", "a scalar tensor or None", found)
+        return loss
+
+    def after_mapping(self, ctx: PruneContext) -> torch.Tensor | None:
+        keep = self._tensor("after_mapping", self._call("after_mapping", ctx), len(ctx.gaussians), "bool")
+        if keep is not None and keep.device != ctx.candidates.device:
+            raise self._fail("after_mapping", f"a keep mask on {ctx.candidates.device}", f"one on {keep.device}")
+        return keep
+
+
 def available() -> list[str]:
     return registry.available(GROUP)
 
 
-def load_strategy(name: str, params: dict[str, Any] | None = None) -> Strategy:
-    """Instantiate strategy ``name`` from the entry points with hyperparameters ``params``."""
+def load_strategy(name: str, params: Strategy | Mapping[str, Any] | None = None) -> Strategy:
+    """Strategy ``name`` from the entry points; a run wraps it in ``CheckedStrategy``.
+
+    ``params`` is the strategy's own dataclass instance (what the typed config holds once its schema
+    is registered) or a mapping of hyperparameters (a plugin config without a schema).
+    """
     cls = registry.load(GROUP, "strategy", name, StrategyError)
     if not (isinstance(cls, type) and issubclass(cls, Strategy) and dataclasses.is_dataclass(cls)):
-        raise StrategyError(f"strategy '{name}' must be a @dataclass subclass of bench.strategy.Strategy, got {cls!r}")
+        raise StrategyError(
+            f"strategy '{name}': expected a @dataclass subclass of bench.strategy.Strategy, found {cls!r}"
+        )
+    if isinstance(params, Strategy):
+        if not isinstance(params, cls):
+            found = type(params).__name__
+            raise StrategyError(f"strategy '{name}': expected parameters of {cls.__name__}, found {found}")
+        return params
     fields = {f.name for f in dataclasses.fields(cls)}
     params = dict(params or {})
     unknown = sorted(set(params) - fields)
     if unknown:
         raise ConfigError(
-            f"strategy '{name}' has no parameter {', '.join(repr(u) for u in unknown)}; "
-            f"expected one of: {', '.join(sorted(fields)) or '(none)'}"
+            f"strategy '{name}': expected parameters among {', '.join(sorted(fields)) or '(none)'}, "
+            f"found {', '.join(repr(u) for u in unknown)}"
         )
     from bench.validate import check_fields
 
@@ -177,4 +278,4 @@ def load_strategy(name: str, params: dict[str, Any] | None = None) -> Strategy:
     try:
         return cls(**params)
     except (TypeError, ValueError) as exc:
-        raise ConfigError(f"strategy '{name}' rejected its parameters: {exc}") from exc
+        raise ConfigError(f"strategy '{name}': expected valid parameters, found {exc}") from exc

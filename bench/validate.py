@@ -293,6 +293,23 @@ def validate(cfg: Any) -> None:
     _validate_lpips(tree.get("eval") or {})
 
 
+def expected(key: str) -> str | None:
+    """What setting ``key`` (dotted) takes, in the words of its check; None if this module does not know."""
+    if key in SETTINGS:
+        return SETTINGS[key].expected()
+    group, _, name = key.partition(".")
+    if group == "dataset" and name in DATASET_SETTINGS:
+        return DATASET_SETTINGS[name].expected()
+    if group == "slam":
+        from bench.slam.frontend import FlowPnpConfig
+        from bench.slam.system import SlamConfig
+
+        cls, name = (FlowPnpConfig, name.split(".", 1)[1]) if name.startswith("flow_pnp.") else (SlamConfig, name)
+        tp = typing.get_type_hints(cls).get(name)
+        return None if tp is None else _type_name(tp)
+    return None
+
+
 def _validate_dataset(ds: Any) -> None:
     if not isinstance(ds, Mapping) or not ds.get("name"):
         raise ConfigError(f"dataset: expected a dataset group with a name (dataset=synthetic|kitti|euroc|tum), "

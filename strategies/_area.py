@@ -1,4 +1,4 @@
-"""The rendering-area score shared by ``pocket`` and ``area`` (paper Eqs. 5-6), plus shared config checks.
+"""The rendering-area score shared by ``pocket`` and ``area`` (paper Eqs. 5-6).
 
 Kept in one place so that the tile-budget ablation (``area``) scores Gaussians exactly as the
 full method (``pocket``) does; the two differ only in how the budget is spent.
@@ -10,27 +10,10 @@ import math
 
 import torch
 
-from bench.errors import ConfigError
+from bench.errors import StrategyError
 from bench.slam.raster import RasterOutput
 
 AREA_MODES: tuple[str, ...] = ("exact", "analytic", "radius")
-
-
-def check_choice(strategy: str, field: str, value: object, allowed: tuple[str, ...]) -> None:
-    """One-line ConfigError unless ``value`` is one of ``allowed``."""
-    if value not in allowed:
-        raise ConfigError(f"strategy '{strategy}': {field} must be one of {', '.join(allowed)}; got {value!r}")
-
-
-def is_int(value: object) -> bool:
-    """True for a real integer (bools are ints to Python, not to a config)."""
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
-def check(strategy: str, ok: bool, message: str) -> None:
-    """One-line ConfigError with the strategy's name unless ``ok``."""
-    if not ok:
-        raise ConfigError(f"strategy '{strategy}': {message}")
 
 
 def coverage(raster: RasterOutput, opacities: torch.Tensor, mode: str = "exact") -> torch.Tensor:
@@ -43,7 +26,7 @@ def coverage(raster: RasterOutput, opacities: torch.Tensor, mode: str = "exact")
     """
     if mode == "exact":
         if raster.coverage is None:
-            raise ValueError("area mode 'exact' needs rasterize(..., stats=True) outputs (coverage is None)")
+            raise StrategyError("area mode 'exact': expected rasterize(..., stats=True) outputs, found coverage None")
         return raster.coverage.detach()
     rendered = raster.radius_px > 0  # [N]
     o = opacities.detach()
@@ -55,7 +38,7 @@ def coverage(raster: RasterOutput, opacities: torch.Tensor, mode: str = "exact")
         r = raster.radius_px.to(o.dtype)  # [N] px
         area = math.pi * r * r
     else:
-        raise ValueError(f"area mode must be one of {', '.join(AREA_MODES)}; got {mode!r}")
+        raise StrategyError(f"area mode: expected one of {', '.join(AREA_MODES)}, found {mode!r}")
     return torch.where(rendered, o * area, torch.zeros_like(area))
 
 

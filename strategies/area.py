@@ -7,8 +7,8 @@ from typing import ClassVar
 
 import torch
 
-from bench.strategy import PruneContext, Strategy, top_k_keep
-from strategies._area import AREA_MODES, area_score, check_choice
+from bench.strategy import PruneContext, Strategy, check_choice, top_k_keep
+from strategies._area import AREA_MODES, area_score
 
 
 @dataclass
@@ -28,4 +28,4 @@ class AreaPruning(Strategy):
 
     def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
         score = area_score(ctx.raster, ctx.gaussians.opacities, self.area)  # [N]
-        return top_k_keep(score, ctx.candidates, ctx.n_target) | ctx.is_new
+        return top_k_keep(score, ctx.candidates, ctx.n_target)

@@ -38,4 +38,4 @@ class GradientPruning(Strategy):
         return state[STATE_GRAD_SUM] / state[STATE_FRAMES].clamp_min(1)
 
     def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
-        return top_k_keep(self.score(ctx.state), ctx.candidates, ctx.n_target) | ctx.is_new
+        return top_k_keep(self.score(ctx.state), ctx.candidates, ctx.n_target)

@@ -26,8 +26,7 @@ from typing import ClassVar
 import torch
 
 from bench.slam.gaussians import GaussianMap, ParamSpec
-from bench.strategy import MappingContext, PruneContext, Strategy, top_k_keep
-from strategies._area import check, check_choice, is_int
+from bench.strategy import MappingContext, PruneContext, Strategy, check, check_choice, is_int, top_k_keep
 
 SELECT_MODES: tuple[str, ...] = ("ratio", "learned")
 
@@ -51,12 +50,12 @@ class MaskPruning(Strategy):
     seed: int = 0  # seeds the Gumbel noise, so runs are reproducible
 
     def __post_init__(self) -> None:
-        check("mask", self.gumbel_tau > 0, f"gumbel_tau must be > 0; got {self.gumbel_tau!r}")
-        check("mask", self.sparsity_weight >= 0, f"sparsity_weight must be >= 0; got {self.sparsity_weight!r}")
-        check("mask", self.mask_lr > 0, f"mask_lr must be > 0; got {self.mask_lr!r}")
+        check("mask", self.gumbel_tau > 0, f"gumbel_tau: expected > 0, found {self.gumbel_tau!r}")
+        check("mask", self.sparsity_weight >= 0, f"sparsity_weight: expected >= 0, found {self.sparsity_weight!r}")
+        check("mask", self.mask_lr > 0, f"mask_lr: expected > 0, found {self.mask_lr!r}")
         check("mask", is_int(self.masked_keyframes) and self.masked_keyframes >= 1,
-              f"masked_keyframes must be an integer >= 1; got {self.masked_keyframes!r}")
-        check("mask", is_int(self.seed), f"seed must be an integer; got {self.seed!r}")
+              f"masked_keyframes: expected an integer >= 1, found {self.masked_keyframes!r}")
+        check("mask", is_int(self.seed), f"seed: expected an integer, found {self.seed!r}")
         check_choice("mask", "select", self.select, SELECT_MODES)
         self._generators: dict[torch.device, torch.Generator] = {}  # not a field: runtime state, one per device
 
@@ -96,7 +95,7 @@ class MaskPruning(Strategy):
             masked = (ctx.candidates & ~keep) | (~ctx.candidates & (run > 0))
         masked &= ~ctx.is_new
         run.copy_(torch.where(masked, run + 1, torch.zeros_like(run)))  # unmasked -> the count restarts
-        return (run < self.masked_keyframes) | ctx.is_new
+        return (run < self.masked_keyframes)
 
     # ------------------------------------------------------------------ helpers
     @staticmethod

@@ -16,8 +16,8 @@ from typing import ClassVar
 
 import torch
 
-from bench.strategy import PruneContext, Strategy, top_k_keep
-from strategies._area import check
+from bench.errors import StrategyError
+from bench.strategy import PruneContext, Strategy, check, top_k_keep
 
 STATE_SIGNIFICANCE = "opacity_significance"  # [N] sum over observing views of o_i * hit_count_i
 STATE_VIEWS = "opacity_views"  # [N] views (prune calls) in which the Gaussian hit at least one pixel
@@ -47,9 +47,10 @@ class OpacityPruning(Strategy):
 
     def __post_init__(self) -> None:
         name = "opacity"
-        check(name, isinstance(self.use_volume, bool), f"use_volume must be true or false; got {self.use_volume!r}")
-        check(name, self.volume_power >= 0, f"volume_power must be >= 0; got {self.volume_power!r}")
-        check(name, 0 < self.volume_quantile <= 1, f"volume_quantile must be in (0, 1]; got {self.volume_quantile!r}")
+        check(name, isinstance(self.use_volume, bool), f"use_volume: expected true or false, found {self.use_volume!r}")
+        check(name, self.volume_power >= 0, f"volume_power: expected >= 0, found {self.volume_power!r}")
+        check(name, 0 < self.volume_quantile <= 1,
+              f"volume_quantile: expected a value in (0, 1], found {self.volume_quantile!r}")
 
     def state_spec(self) -> dict[str, torch.dtype]:
         return {STATE_SIGNIFICANCE: torch.float32, STATE_VIEWS: torch.float32}
@@ -63,8 +64,8 @@ class OpacityPruning(Strategy):
 
     def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
         if ctx.raster.hit_count is None:
-            raise ValueError("opacity pruning needs rasterize(..., stats=True) outputs (hit_count is None)")
+            raise StrategyError("expected rasterize(..., stats=True) outputs, found hit_count None")
         hits = ctx.raster.hit_count.to(torch.float32)  # [N] pixels hit in this keyframe
         ctx.state[STATE_SIGNIFICANCE] += ctx.gaussians.opacities.detach() * hits
         ctx.state[STATE_VIEWS] += (hits > 0).to(torch.float32)
-        return top_k_keep(self.significance(ctx), ctx.candidates, ctx.n_target) | ctx.is_new
+        return top_k_keep(self.significance(ctx), ctx.candidates, ctx.n_target)

@@ -17,8 +17,8 @@ import torch
 
 from bench.errors import StrategyError
 from bench.slam.raster import TILE_PX
-from bench.strategy import PruneContext, Strategy
-from strategies._area import AREA_MODES, area_score, check, check_choice, is_int
+from bench.strategy import PruneContext, Strategy, check, check_choice, is_int
+from strategies._area import AREA_MODES, area_score
 
 BUDGET_ROUNDINGS: tuple[str, ...] = ("ceil", "floor")
 TILE_SOURCES: tuple[str, ...] = ("center", "zero")
@@ -99,11 +99,11 @@ class PocketPruning(Strategy):
     def __post_init__(self) -> None:
         name = "pocket"
         check(name, self.tile_px == TILE_PX,
-              f"tile_px must equal the rasterizer's tile size {TILE_PX}; got {self.tile_px!r}")
+              f"tile_px: expected the rasterizer's tile size {TILE_PX}, found {self.tile_px!r}")
         check(name, is_int(self.budget_min) and self.budget_min >= 0,
-              f"budget_min must be an integer >= 0; got {self.budget_min!r}")
+              f"budget_min: expected an integer >= 0, found {self.budget_min!r}")
         check(name, is_int(self.budget_max) and self.budget_max >= max(self.budget_min, 1),
-              f"budget_max must be an integer >= budget_min ({self.budget_min}) and >= 1; got {self.budget_max!r}")
+              f"budget_max: expected an integer >= budget_min ({self.budget_min}) and >= 1, found {self.budget_max!r}")
         check_choice(name, "area", self.area, AREA_MODES)
         check_choice(name, "budget_round", self.budget_round, BUDGET_ROUNDINGS)
         check_choice(name, "tile_source", self.tile_source, TILE_SOURCES)
@@ -121,7 +121,7 @@ class PocketPruning(Strategy):
     def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
         score = area_score(ctx.raster, ctx.gaussians.opacities, self.area)  # [N] S_i
         budget, _ = self.budgets(ctx)
-        return keep_top_per_tile(score, self._tiles(ctx), self._candidates(ctx), budget) | ctx.is_new
+        return keep_top_per_tile(score, self._tiles(ctx), self._candidates(ctx), budget)
 
     def _tiles(self, ctx: PruneContext) -> torch.Tensor:
         """[N] tile index per Gaussian (see ``tile_source``)."""

@@ -10,7 +10,8 @@ import torch
 
 import bench.measure as measure
 from bench.errors import ConfigError
-from bench.measure import MemoryProbe, PhaseTimer, tensor_bytes
+from bench.measure import MemoryProbe, PhaseTimer
+from bench.slam.gaussians import tensor_bytes
 
 BIG_MIB = 200
 CPU = torch.device("cpu")
@@ -99,15 +100,14 @@ def test_torch_live_off_and_busy_profiler_fallback() -> None:
     with MemoryProbe(CPU, torch_live=False) as off:
         assert off.torch_live_method == "off"
         assert _window(off)["torch_live_peak_mib"] is None
-    first = MemoryProbe(CPU)
-    try:
-        if first.torch_live_method == "profiler-memory":
-            second = MemoryProbe(CPU)  # only one profiler at a time: falls back
-            assert second.torch_live_method == "dispatch-mode"
-            second.close()
-    finally:
-        first.close()
-        first.close()  # idempotent
+    with torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU]):
+        busy = MemoryProbe(CPU)  # only one profiler at a time: falls back
+        try:
+            assert busy.torch_live_method == "dispatch-mode"
+            assert _window(busy)["torch_live_peak_mib"] is not None
+        finally:
+            busy.close()
+            busy.close()  # idempotent
 
 
 def test_unknown_live_method() -> None:

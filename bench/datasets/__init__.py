@@ -21,7 +21,7 @@ def open_sequence(name: str, cfg: Mapping[str, Any]) -> Sequence:
     seq = factory(cfg)
     if not isinstance(seq, Sequence):
         raise DatasetError(
-            f"dataset plugin '{name}' must return a bench.datasets.Sequence, got {type(seq).__name__}"
+            f"dataset plugin '{name}': expected a bench.datasets.Sequence, found {type(seq).__name__}"
         )
     return seq
 

@@ -7,64 +7,40 @@ Kept in one place so every loader reports bad input the same way: one lowercase 
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 import torch
+from evo.core import sync
 
+from bench.datasets.base import RecordedConfig
 from bench.errors import ConfigError, DatasetError
+from bench.slam.se3 import quat_to_rotmat
 
 REPO = Path(__file__).resolve().parents[2]
 _LOG = logging.getLogger("bench.datasets")
+GT_POLICIES: tuple[str, ...] = ("drop", "error")
 
 
-def plain_cfg(cfg: Mapping[str, Any]) -> dict[str, Any]:
-    """A plain ``dict`` copy of ``cfg`` (OmegaConf ``DictConfig`` resolved), so loaders never mutate it."""
-    try:
-        from omegaconf import DictConfig, OmegaConf
+@dataclass
+class GroundTruthPolicy:
+    """How frames are matched to a ground truth recorded on its own clock (EuRoC, TUM)."""
 
-        if isinstance(cfg, DictConfig):
-            return dict(OmegaConf.to_container(cfg, resolve=True))  # type: ignore[arg-type]
-    except ImportError:  # pragma: no cover - hydra-core is a dependency
-        pass
-    return dict(cfg)
+    gt_max_diff_s: float = 0.02  # frame <-> ground-truth timestamp association tolerance
+    gt_missing: str = "drop"  # drop | error: what to do with frames that have no pose within gt_max_diff_s
+
+    def check_policy(self, dataset: str) -> None:
+        if self.gt_missing not in GT_POLICIES:
+            raise ConfigError(f"{dataset} gt_missing: expected 'drop' or 'error', found {self.gt_missing!r}")
+        if not self.gt_max_diff_s > 0:
+            raise ConfigError(f"{dataset} gt_max_diff_s: expected a positive number, found {self.gt_max_diff_s}")
 
 
 def readme(dataset: str) -> str:
     return f"see datasets/{dataset}/README.md"
-
-
-def seq_name(cfg: Mapping[str, Any]) -> str:
-    """``cfg['seq']``, or the yaml's ``default_seq`` when it is None/empty."""
-    seq = cfg.get("seq")
-    if seq is None or str(seq).strip() == "":
-        seq = cfg.get("default_seq")
-    if seq is None or str(seq).strip() == "":
-        raise ConfigError(f"{cfg.get('name', 'dataset')}: expected a sequence in seq or default_seq, found none")
-    return str(seq).strip()
-
-
-def get_int(cfg: Mapping[str, Any], key: str, default: int | None, dataset: str, minimum: int = 0) -> int | None:
-    value = cfg.get(key, default)
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ConfigError(f"{dataset} {key}: expected an integer >= {minimum}, found {value!r}")
-    return int(value)
-
-
-def get_float(
-    cfg: Mapping[str, Any], key: str, default: float | None, dataset: str, allow_none: bool = True
-) -> float | None:
-    value = cfg.get(key, default)
-    if value is None and allow_none:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) or value <= 0:
-        raise ConfigError(f"{dataset} {key}: expected a positive number, found {value!r}")
-    return float(value)
 
 
 def listing(path: Path, limit: int = 12) -> str:
@@ -178,11 +154,9 @@ def scale_K(K: np.ndarray, factor: int) -> np.ndarray:
     return K
 
 
-def select(n: int, cfg: Mapping[str, Any], dataset: str, log: logging.Logger) -> np.ndarray:
-    """Indices picked by ``first``, ``last`` (inclusive, null = end) and ``stride`` out of ``n`` frames."""
-    first = get_int(cfg, "first", 0, dataset) or 0
-    last = get_int(cfg, "last", None, dataset)
-    stride = get_int(cfg, "stride", 1, dataset, minimum=1) or 1
+def select(n: int, cfg: RecordedConfig, log: logging.Logger) -> np.ndarray:
+    """Indices picked by ``first``, ``last`` (inclusive, None = end) and ``stride`` out of ``n`` frames."""
+    dataset, first, last, stride = cfg.name, cfg.first, cfg.last, cfg.stride
     if n == 0:
         raise DatasetError(f"{dataset}: expected at least one frame, found none")
     if first >= n:
@@ -197,20 +171,6 @@ def select(n: int, cfg: Mapping[str, Any], dataset: str, log: logging.Logger) ->
     return np.arange(first, last + 1, stride)
 
 
-def quat_wxyz_to_rot(q: np.ndarray) -> np.ndarray:
-    """Unit quaternions [N, 4] (w, x, y, z) -> rotations [N, 3, 3] (normalised first)."""
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    w, x, y, z = q.T
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
-
-
 def poses_from_tq(t: np.ndarray, q_wxyz: np.ndarray, path: Path, dataset: str) -> np.ndarray:
     """Translations [N, 3] + quaternions [N, 4] -> [N, 4, 4] float64; rejects zero-norm quaternions."""
     norms = np.linalg.norm(q_wxyz, axis=1)
@@ -220,7 +180,7 @@ def poses_from_tq(t: np.ndarray, q_wxyz: np.ndarray, path: Path, dataset: str) -
             f"{dataset} ground truth {path}: expected unit quaternions, found norm {norms[bad[0]]:g} in pose {bad[0]}"
         )
     T = np.tile(np.eye(4), (len(t), 1, 1))
-    T[:, :3, :3] = quat_wxyz_to_rot(q_wxyz)
+    T[:, :3, :3] = quat_to_rotmat(torch.from_numpy(q_wxyz)).numpy()
     T[:, :3, 3] = t
     return T
 
@@ -238,52 +198,24 @@ def check_finite_rows(
 
 
 def associate_nearest(query_s: np.ndarray, ref_s: np.ndarray, max_diff_s: float) -> np.ndarray:
-    """For each query time, the index of the nearest reference time within ``max_diff_s`` (else -1)."""
-    if len(ref_s) == 0:
-        return np.full(len(query_s), -1, dtype=np.int64)
-    order = np.argsort(ref_s, kind="stable")
-    ref_sorted = ref_s[order]
-    pos = np.searchsorted(ref_sorted, query_s)
-    lo = np.clip(pos - 1, 0, len(ref_sorted) - 1)
-    hi = np.clip(pos, 0, len(ref_sorted) - 1)
-    pick = np.where(np.abs(ref_sorted[lo] - query_s) <= np.abs(ref_sorted[hi] - query_s), lo, hi)
-    out = order[pick]
-    out[np.abs(ref_s[out] - query_s) > max_diff_s] = -1
-    return out
+    """For each query time, the index of the nearest reference time within ``max_diff_s`` (else -1).
 
-
-def associate_greedy(a_s: np.ndarray, b_s: np.ndarray, max_diff_s: float) -> list[tuple[int, int]]:
-    """TUM ``associate.py``: one-to-one pairs, closest first, |a - b| < max_diff_s; sorted by a.
-
-    Candidates come from a sorted window per ``a`` instead of all N x M differences.
+    The matching is evo's (``sync.matching_time_indices``), the same that pairs estimate and
+    ground truth for the ATE.
     """
-    order = np.argsort(b_s, kind="stable")
-    b_sorted = b_s[order]
-    lo = np.searchsorted(b_sorted, a_s - max_diff_s, side="left")
-    hi = np.searchsorted(b_sorted, a_s + max_diff_s, side="right")
-    cands: list[tuple[float, int, int]] = []
-    for ia in range(len(a_s)):
-        for k in range(lo[ia], hi[ia]):
-            diff = abs(a_s[ia] - b_sorted[k])
-            if diff < max_diff_s:
-                cands.append((diff, ia, int(order[k])))
-    cands.sort()
-    used_a: set[int] = set()
-    used_b: set[int] = set()
-    pairs = []
-    for _, ia, ib in cands:
-        if ia not in used_a and ib not in used_b:
-            used_a.add(ia)
-            used_b.add(ib)
-            pairs.append((ia, ib))
-    pairs.sort()
-    return pairs
+    out = np.full(len(query_s), -1, dtype=np.int64)
+    if len(ref_s) == 0 or len(query_s) == 0:
+        return out
+    order = np.argsort(ref_s, kind="stable")
+    i_query, i_ref = sync.matching_time_indices(np.asarray(query_s, np.float64), ref_s[order], max_diff=max_diff_s)
+    out[np.asarray(i_query, dtype=np.int64)] = order[np.asarray(i_ref, dtype=np.int64)]
+    return out
 
 
 def apply_gt_policy(
     assoc: np.ndarray,
     times_s: np.ndarray,
-    cfg: Mapping[str, Any],
+    cfg: GroundTruthPolicy,
     dataset: str,
     gt_path: Path,
     log: logging.Logger,
@@ -294,14 +226,12 @@ def apply_gt_policy(
     (real EuRoC/TUM ground truth often starts after, or ends before, the cameras) and logs how
     many; ``error`` raises instead. Either way every delivered frame has a pose.
     """
-    policy = str(cfg.get("gt_missing", "drop"))
-    if policy not in ("drop", "error"):
-        raise ConfigError(f"{dataset} gt_missing: expected 'drop' or 'error', found {policy!r}")
+    policy = cfg.gt_missing
     keep = assoc >= 0
     n_miss = int((~keep).sum())
     if n_miss == 0:
         return keep
-    max_diff = cfg.get("gt_max_diff_s", 0.02)
+    max_diff = cfg.gt_max_diff_s
     first_t = times_s[~keep][0]
     if policy == "error" or n_miss == len(keep):
         raise DatasetError(

@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import re
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -23,9 +24,10 @@ import cv2
 import numpy as np
 import yaml
 
-from bench.datasets import _realio as io
+from bench.config import as_config
+from bench.datasets import _realio as realio
 from bench.datasets.base import Sequence
-from bench.datasets.stereo import StereoParams, StereoSequence, cache_from_cfg
+from bench.datasets.stereo import DepthCache, StereoConfig, StereoParams, StereoSequence
 from bench.errors import DatasetError
 
 LOG = logging.getLogger("bench.datasets.euroc")
@@ -46,6 +48,24 @@ ALIASES = {
 }
 
 
+@dataclass
+class EurocConfig(StereoConfig, realio.GroundTruthPolicy):
+    """``dataset=euroc``: EuRoC MAV, ASL layout (see datasets/euroc/README.md)."""
+
+    name: str = "euroc"
+    root: str = "data/euroc"  # holds <seq>/mav0/
+    default_seq: str = "V1_01_easy"  # folder name or alias: MH01..MH05, V101..V103, V201..V203
+    downscale: int = 2  # 752x480 -> 376x240; K (rectified P1) scaled to match
+    max_depth_m: float | None = 10.0  # 0.11 m baseline: 1 px of disparity ~ 2 m at 10 m
+    rectify_alpha: float = 0.0  # cv2.stereoRectify alpha: 0 crops to valid pixels, 1 keeps all (black borders)
+    # nearest depth fx*b/64 ~ 0.75 m at full resolution
+    stereo: StereoParams = field(default_factory=lambda: StereoParams(num_disparities=64))
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.check_policy(self.name)
+
+
 def resolve_seq(seq: str) -> str:
     """Folder name for ``seq``: 'MH01', 'mh_01', 'V101' -> official names; others unchanged."""
     key = re.sub(r"[^A-Za-z0-9]", "", seq).upper()
@@ -61,8 +81,8 @@ def read_sensor_yaml(path: Path) -> dict[str, Any]:
     """cam sensor.yaml -> {K [3,3], dist [4], T_BS [4,4], size (w, h)}; the %YAML header is stripped."""
     if not path.is_file():
         raise DatasetError(
-            f"euroc sensor.yaml missing: expected {path}, found {io.listing(path.parent)} in {path.parent}; "
-            f"{io.readme(DATASET)}"
+            f"euroc sensor.yaml missing: expected {path}, found {realio.listing(path.parent)} in {path.parent}; "
+            f"{realio.readme(DATASET)}"
         )
     text = "\n".join(line for line in path.read_text().splitlines() if not line.startswith("%YAML"))
     try:
@@ -136,7 +156,7 @@ def read_cam_csv(cam_dir: Path) -> tuple[np.ndarray, list[str]]:
     """cam data.csv -> (timestamps [N] int64 ns, file names); checks it against data/."""
     path = cam_dir / "data.csv"
     if not path.is_file():
-        raise DatasetError(f"euroc camera list missing: expected {path}, found {io.listing(cam_dir)} in {cam_dir}")
+        raise DatasetError(f"euroc camera list missing: expected {path}, found {realio.listing(cam_dir)} in {cam_dir}")
     stamps, names = [], []
     for lineno, line in enumerate(path.read_text().splitlines(), 1):
         if not line.strip() or line.lstrip().startswith("#"):
@@ -180,8 +200,8 @@ def read_groundtruth(path: Path) -> tuple[np.ndarray, np.ndarray]:
         rows.append(values)
         linenos.append(lineno)
     arr = np.array(rows, dtype=np.float64).reshape(-1, 7)
-    io.check_finite_rows(arr, path, DATASET, "ground truth", line_numbers=linenos)
-    return np.array(stamps, dtype=np.int64), io.poses_from_tq(arr[:, :3], arr[:, 3:7], path, DATASET)
+    realio.check_finite_rows(arr, path, DATASET, "ground truth", line_numbers=linenos)
+    return np.array(stamps, dtype=np.int64), realio.poses_from_tq(arr[:, :3], arr[:, 3:7], path, DATASET)
 
 
 def rectification(cam0: dict[str, Any], cam1: dict[str, Any], alpha: float) -> dict[str, np.ndarray]:
@@ -206,11 +226,11 @@ def rectification(cam0: dict[str, Any], cam1: dict[str, Any], alpha: float) -> d
     return {"R1": R1, "R2": R2, "P1": P1, "P2": P2, "maps": maps}
 
 
-def open_sequence(cfg: Mapping[str, Any]) -> Sequence:
-    """Open EuRoC sequence ``cfg['seq']`` (folder name or alias; see conf/dataset/euroc.yaml)."""
-    cfg = io.plain_cfg(cfg)
-    requested = io.seq_name(cfg)
-    root = io.resolve_root(DATASET, cfg.get("root", "data/euroc"))
+def open_sequence(cfg: EurocConfig | Mapping[str, Any]) -> Sequence:
+    """Open EuRoC sequence ``cfg.seq`` (folder name or alias; every setting: ``EurocConfig``)."""
+    cfg = as_config(EurocConfig, cfg)
+    requested = cfg.default_sequence()
+    root = realio.resolve_root(DATASET, cfg.root)
     folder = requested if (root / requested).is_dir() else resolve_seq(requested)
     mav = root / folder / "mav0"
     if not (mav / "cam0").is_dir() or not (mav / "cam1").is_dir():
@@ -218,7 +238,7 @@ def open_sequence(cfg: Mapping[str, Any]) -> Sequence:
         where = mav if (root / folder).is_dir() else root
         raise DatasetError(
             f"euroc sequence '{requested}'{alias} not found: expected {mav}/cam0 and cam1; "
-            f"{where} has: {io.listing(where)}; {io.readme(DATASET)}"
+            f"{where} has: {realio.listing(where)}; {realio.readme(DATASET)}"
         )
 
     cam0 = read_sensor_yaml(mav / "cam0" / "sensor.yaml")
@@ -244,7 +264,7 @@ def open_sequence(cfg: Mapping[str, Any]) -> Sequence:
     left_paths = [mav / "cam0" / "data" / p[1] for p in pairs]
     right_paths = [mav / "cam1" / "data" / p[2] for p in pairs]
 
-    alpha = float(cfg.get("rectify_alpha", 0.0))
+    alpha = cfg.rectify_alpha
     rect = rectification(cam0, cam1, alpha)
     P1, P2 = rect["P1"], rect["P2"]
     baseline_m = float(-P2[0, 3] / P2[0, 0])
@@ -258,10 +278,10 @@ def open_sequence(cfg: Mapping[str, Any]) -> Sequence:
     gt = None
     if gt_path.is_file():
         gt_ns, T_W_B = read_groundtruth(gt_path)
-        max_diff_s = io.get_float(cfg, "gt_max_diff_s", 0.02, DATASET, allow_none=False)
+        max_diff_s = cfg.gt_max_diff_s
         # associate in int64 ns relative to the first frame: float64 seconds since 1970 lose ~0.2 us
-        assoc = io.associate_nearest((stamps_ns - stamps_ns[0]) * 1e-9, (gt_ns - stamps_ns[0]) * 1e-9, max_diff_s)
-        keep = io.apply_gt_policy(assoc, stamps_ns * 1e-9, cfg, DATASET, gt_path, LOG)
+        assoc = realio.associate_nearest((stamps_ns - stamps_ns[0]) * 1e-9, (gt_ns - stamps_ns[0]) * 1e-9, max_diff_s)
+        keep = realio.apply_gt_policy(assoc, stamps_ns * 1e-9, cfg, DATASET, gt_path, LOG)
         T_C0_Crect = np.eye(4)
         T_C0_Crect[:3, :3] = rect["R1"].T  # x_rect = R1 @ x_cam0
         gt = T_W_B[assoc[keep]] @ cam0["T_BS"] @ T_C0_Crect
@@ -271,7 +291,7 @@ def open_sequence(cfg: Mapping[str, Any]) -> Sequence:
     else:
         LOG.info("euroc %s: no ground truth at %s; has_gt is False", folder, gt_path)
 
-    idx = io.select(len(left_paths), cfg, DATASET, LOG)
+    idx = realio.select(len(left_paths), cfg, LOG)
     maps = rect["maps"]
 
     def rectify(img: np.ndarray, side: int) -> np.ndarray:
@@ -289,10 +309,10 @@ def open_sequence(cfg: Mapping[str, Any]) -> Sequence:
         full_size=cam0["size"],  # stereoRectify keeps the image size
         raw_size=cam0["size"],
         colour=False,
-        downscale=io.get_int(cfg, "downscale", 1, DATASET, minimum=1) or 1,
-        params=StereoParams.from_cfg(cfg.get("stereo"), DATASET),
-        max_depth_m=io.get_float(cfg, "max_depth_m", 10.0, DATASET),
-        cache=cache_from_cfg(cfg, DATASET),
+        downscale=cfg.downscale,
+        params=cfg.stereo,
+        max_depth_m=cfg.max_depth_m,
+        cache=DepthCache(cfg.cache_dir, DATASET),
         rectify=rectify,
         key_extra={
             "rectify": {

@@ -11,19 +11,39 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bench.datasets import _realio as io
+from bench.config import as_config
+from bench.datasets import _realio as realio
 from bench.datasets.base import Sequence
-from bench.datasets.stereo import StereoParams, StereoSequence, cache_from_cfg
+from bench.datasets.stereo import DepthCache, StereoConfig, StereoSequence
 from bench.errors import ConfigError, DatasetError
 
 LOG = logging.getLogger("bench.datasets.kitti")
 DATASET = "kitti"
 _PAIRS = {"color": ("image_2", "image_3", "P2", "P3"), "gray": ("image_0", "image_1", "P0", "P1")}
+COLOR_MODES: tuple[str, ...] = ("auto", "color", "gray")
+
+
+@dataclass
+class KittiConfig(StereoConfig):
+    """``dataset=kitti``: KITTI odometry (see datasets/kitti/README.md)."""
+
+    name: str = "kitti"
+    root: str = "data/kitti"  # holds sequences/XX/ and poses/XX.txt
+    default_seq: str = "06"  # numeric names are zero-padded ('6' -> '06')
+    color: str = "auto"  # auto | color | gray: image_2/3 (colour) or image_0/1 (gray); falls back with a log line
+    downscale: int = 4  # 1241x376 -> 310x94 (1226x370 -> 306x92)
+    max_depth_m: float | None = 50.0  # stereo depth beyond this is set to 0 (1 px of disparity ~ 8 m at 50 m)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.color not in COLOR_MODES:
+            raise ConfigError(f"kitti color: expected auto, color or gray, found {self.color!r}")
 
 
 def normalize_seq(seq: Any) -> str:
@@ -36,8 +56,8 @@ def parse_calib(path: Path) -> dict[str, tuple[int, np.ndarray]]:
     """``KEY: v1 v2 ...`` lines -> {key: (line number, values)}; raises on a malformed line."""
     if not path.is_file():
         raise DatasetError(
-            f"kitti calib missing: expected {path}, found {io.listing(path.parent)} in {path.parent}; "
-            f"{io.readme(DATASET)}"
+            f"kitti calib missing: expected {path}, found {realio.listing(path.parent)} in {path.parent}; "
+            f"{realio.readme(DATASET)}"
         )
     calib: dict[str, tuple[int, np.ndarray]] = {}
     for lineno, line in enumerate(path.read_text().splitlines(), 1):
@@ -104,8 +124,8 @@ def read_times(path: Path) -> np.ndarray:
     """times.txt -> [N] float64 seconds."""
     if not path.is_file():
         raise DatasetError(
-            f"kitti times missing: expected {path}, found {io.listing(path.parent)} in {path.parent}; "
-            f"{io.readme(DATASET)}"
+            f"kitti times missing: expected {path}, found {realio.listing(path.parent)} in {path.parent}; "
+            f"{realio.readme(DATASET)}"
         )
     times = []
     for lineno, line in enumerate(path.read_text().splitlines(), 1):
@@ -116,7 +136,7 @@ def read_times(path: Path) -> np.ndarray:
         except ValueError:
             raise DatasetError(f"kitti times {path} line {lineno}: expected one number, found {line[:40]!r}") from None
     arr = np.array(times, dtype=np.float64)
-    io.check_finite_rows(arr[:, None], path, DATASET, "times")
+    realio.check_finite_rows(arr[:, None], path, DATASET, "times")
     return arr
 
 
@@ -136,7 +156,7 @@ def read_poses(path: Path) -> np.ndarray:
             raise DatasetError(f"kitti poses {path} line {lineno}: expected 12 numbers, found {len(values)}")
         rows.append(values)
     arr = np.array(rows, dtype=np.float64).reshape(-1, 12)
-    io.check_finite_rows(arr, path, DATASET, "poses")
+    realio.check_finite_rows(arr, path, DATASET, "poses")
     T = np.tile(np.eye(4), (len(arr), 1, 1))
     T[:, :3, :] = arr.reshape(-1, 3, 4)
     return T
@@ -144,18 +164,16 @@ def read_poses(path: Path) -> np.ndarray:
 
 def _choose_pair(seq_dir: Path, seq: str, mode: str, sequences_dir: Path) -> str:
     """'color' or 'gray' for the requested ``color`` mode, logging the choice and any fallback."""
-    if mode not in ("auto", "color", "gray"):
-        raise ConfigError(f"kitti color: expected auto, color or gray, found {mode!r}")
     have = {k: all((seq_dir / d).is_dir() for d in v[:2]) for k, v in _PAIRS.items()}
     if not any(have.values()):
         if not seq_dir.is_dir():
             raise DatasetError(
                 f"kitti sequence '{seq}' not found: expected {seq_dir}/image_2 or image_0; "
-                f"{sequences_dir} has: {io.listing(sequences_dir)}; {io.readme(DATASET)}"
+                f"{sequences_dir} has: {realio.listing(sequences_dir)}; {realio.readme(DATASET)}"
             )
         raise DatasetError(
             f"kitti sequence '{seq}' has no stereo pair: expected image_2+image_3 or image_0+image_1 in "
-            f"{seq_dir}, found: {io.listing(seq_dir)}; {io.readme(DATASET)}"
+            f"{seq_dir}, found: {realio.listing(seq_dir)}; {realio.readme(DATASET)}"
         )
     if mode == "auto":
         pick = "color" if have["color"] else "gray"
@@ -181,19 +199,19 @@ def _list_pngs(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png")
 
 
-def open_sequence(cfg: Mapping[str, Any]) -> Sequence:
-    """Open KITTI odometry sequence ``cfg['seq']`` (see conf/dataset/kitti.yaml for the knobs)."""
-    cfg = io.plain_cfg(cfg)
-    seq = normalize_seq(io.seq_name(cfg))
-    root = io.resolve_root(DATASET, cfg.get("root", "data/kitti"))
+def open_sequence(cfg: KittiConfig | Mapping[str, Any]) -> Sequence:
+    """Open KITTI odometry sequence ``cfg.seq`` (every setting: ``KittiConfig``)."""
+    cfg = as_config(KittiConfig, cfg)
+    seq = normalize_seq(cfg.default_sequence())
+    root = realio.resolve_root(DATASET, cfg.root)
     sequences_dir = root / "sequences"
     if not sequences_dir.is_dir():
         raise DatasetError(
-            f"kitti sequences folder not found: expected {sequences_dir}; {root} has: {io.listing(root)}; "
-            f"{io.readme(DATASET)}"
+            f"kitti sequences folder not found: expected {sequences_dir}; {root} has: {realio.listing(root)}; "
+            f"{realio.readme(DATASET)}"
         )
     seq_dir = sequences_dir / seq
-    pair = _choose_pair(seq_dir, seq, str(cfg.get("color", "auto")), sequences_dir)
+    pair = _choose_pair(seq_dir, seq, cfg.color, sequences_dir)
     left_dir, right_dir, left_key, right_key = _PAIRS[pair]
 
     calib_path = seq_dir / "calib.txt"
@@ -240,10 +258,9 @@ def open_sequence(cfg: Mapping[str, Any]) -> Sequence:
     else:
         LOG.info("kitti %s: no ground truth at %s; has_gt is False", seq, poses_path)
 
-    first_img = io.read_image(left_paths[0], DATASET, "gray")
+    first_img = realio.read_image(left_paths[0], DATASET, "gray")
     height, width = first_img.shape[:2]
-    downscale = io.get_int(cfg, "downscale", 1, DATASET, minimum=1) or 1
-    idx = io.select(n, cfg, DATASET, LOG)
+    idx = realio.select(n, cfg, LOG)
     sequence = StereoSequence(
         dataset=DATASET,
         name=f"kitti/{seq}",
@@ -255,10 +272,10 @@ def open_sequence(cfg: Mapping[str, Any]) -> Sequence:
         baseline_m=baseline_m,
         full_size=(width, height),
         colour=pair == "color",
-        downscale=downscale,
-        params=StereoParams.from_cfg(cfg.get("stereo"), DATASET),
-        max_depth_m=io.get_float(cfg, "max_depth_m", 50.0, DATASET),
-        cache=cache_from_cfg(cfg, DATASET),
+        downscale=cfg.downscale,
+        params=cfg.stereo,
+        max_depth_m=cfg.max_depth_m,
+        cache=DepthCache(cfg.cache_dir, DATASET),
     )
     texts = [calib_path, times_path] + ([poses_path] if gt is not None else [])
     sequence.source_files = (*texts, *sequence.left_paths, *sequence.right_paths)

@@ -11,10 +11,10 @@ every depth parameter, so prepare with the same overrides the benchmark will use
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -28,24 +28,36 @@ from bench.errors import BenchError, ConfigError
 LOG = logging.getLogger("bench.datasets.prepare")
 
 
-def load_cfg(name: str, overrides: list[str], conf_dir: Path = CONF_DIR / "dataset") -> dict[str, Any]:
-    """bench/conf/dataset/<name>.yaml with ``key=value`` overrides applied (values parsed as yaml)."""
-    path = conf_dir / f"{name}.yaml"
+def load_cfg(name: str, overrides: list[str]) -> Any:
+    """The dataset config as ``python -m bench dataset=NAME dataset.KEY=VALUE ...`` composes it."""
+    from hydra import compose, initialize_config_dir
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    from bench.config import describe_error, register_configs
+
+    path = CONF_DIR / "dataset" / f"{name}.yaml"
     if not path.is_file():
-        found = ", ".join(sorted(p.stem for p in conf_dir.glob("*.yaml"))) or "(none)"
+        found = ", ".join(sorted(p.stem for p in path.parent.glob("*.yaml"))) or "(none)"
         raise ConfigError(f"dataset config not found: expected {path}, found configs: {found}")
-    cfg = OmegaConf.load(path)
     dotlist = []
     for item in overrides:
         if "=" not in item:
-            raise ConfigError(f"override {item!r}: expected key=value")
+            raise ConfigError(f"override {item!r}: expected key=value, found no '='")
         key, value = item.split("=", 1)
-        dotlist.append(f"{key.removeprefix('dataset.')}={value}")
-    cfg = OmegaConf.merge(cfg, OmegaConf.from_dotlist(dotlist))
-    return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
+        dotlist.append(f"dataset.{key.removeprefix('dataset.')}={value}")
+    register_configs()
+    try:
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            cfg = compose(config_name="config", overrides=[f"dataset={name}", *dotlist])
+        return OmegaConf.to_object(cfg.dataset)
+    except OmegaConfBaseException as exc:
+        raise ConfigError(describe_error(exc)) from None
+    except HydraException as exc:
+        raise ConfigError(str(exc).splitlines()[0]) from None
 
 
-def prepare(name: str, cfg: dict[str, Any]) -> dict[str, float]:
+def prepare(name: str, cfg: Any) -> dict[str, float]:
     """Fill the depth cache for every selected frame; returns summary statistics."""
     seq = open_sequence(name, cfg)
     if not isinstance(seq, StereoSequence):
@@ -102,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         cfg = load_cfg(args.dataset, [*args.overrides, *extra])
         if args.seq is not None:
-            cfg["seq"] = args.seq  # keep '06' a string (yaml would read it as 6; kitti pads it back anyway)
+            cfg = dataclasses.replace(cfg, seq=args.seq)  # as typed: '06' stays '06'
         prepare(args.dataset, cfg)
     except BenchError as exc:
         print(f"error: {exc}", file=sys.stderr)

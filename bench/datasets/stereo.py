@@ -16,7 +16,7 @@ import logging
 import os
 import tempfile
 from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -24,8 +24,8 @@ import cv2
 import numpy as np
 import torch
 
-from bench.datasets import _realio as io
-from bench.datasets.base import Frame, Sequence
+from bench.datasets import _realio as realio
+from bench.datasets.base import RecordedConfig, TimedSequence
 from bench.errors import ConfigError
 
 CACHE_VERSION = 1  # bump when the depth pipeline changes in a way the key does not capture
@@ -40,9 +40,9 @@ _MODES = {
 }
 
 
-@dataclass(frozen=True)
+@dataclass
 class StereoParams:
-    """OpenCV StereoSGBM knobs (``stereo:`` in the dataset yaml); P1/P2 follow OpenCV's advice."""
+    """OpenCV StereoSGBM knobs (``dataset.stereo``); P1/P2 follow OpenCV's advice."""
 
     num_disparities: int = 128  # search range in px, multiple of 16; sets the nearest depth
     block_size: int = 5  # odd matching window (px)
@@ -54,25 +54,23 @@ class StereoParams:
     pre_filter_cap: int = 63
     mode: str = "sgbm_3way"  # sgbm | sgbm_3way (fast) | hh | hh4
 
-    @classmethod
-    def from_cfg(cls, stereo: Mapping[str, Any] | None, dataset: str) -> StereoParams:
-        stereo = dict(stereo or {})
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(stereo) - known)
-        if unknown:
+    def __post_init__(self) -> None:
+        if self.mode not in _MODES:
+            raise ConfigError(f"stereo.mode: expected one of {', '.join(_MODES)}, found {self.mode!r}")
+        if self.num_disparities <= 0 or self.num_disparities % 16:
             raise ConfigError(
-                f"{dataset} stereo: expected keys among {', '.join(sorted(known))}, found {', '.join(unknown)}"
+                f"stereo.num_disparities: expected a positive multiple of 16, found {self.num_disparities}"
             )
-        params = cls(**stereo)
-        if params.mode not in _MODES:
-            raise ConfigError(f"{dataset} stereo.mode: expected one of {', '.join(_MODES)}, found {params.mode!r}")
-        if params.num_disparities <= 0 or params.num_disparities % 16:
-            raise ConfigError(
-                f"{dataset} stereo.num_disparities: expected a positive multiple of 16, found {params.num_disparities}"
-            )
-        if params.block_size < 1 or params.block_size % 2 == 0:
-            raise ConfigError(f"{dataset} stereo.block_size: expected an odd number >= 1, found {params.block_size}")
-        return params
+        if self.block_size < 1 or self.block_size % 2 == 0:
+            raise ConfigError(f"stereo.block_size: expected an odd number >= 1, found {self.block_size}")
+
+
+@dataclass
+class StereoConfig(RecordedConfig):
+    """A dataset whose depth comes from a stereo pair (KITTI, EuRoC)."""
+
+    cache_dir: str | None = DEFAULT_CACHE_DIR  # per-frame depth cache; None disables
+    stereo: StereoParams = field(default_factory=StereoParams)  # cv2.StereoSGBM, run at full resolution
 
 
 def compute_disparity(left: np.ndarray, right: np.ndarray, params: StereoParams) -> np.ndarray:
@@ -117,7 +115,7 @@ def stereo_depth(
 ) -> np.ndarray:
     """Full-resolution SGBM depth, then valid-aware downscale: [H // f, W // f] float32 metres."""
     depth = disparity_to_depth(compute_disparity(left, right, params), fx_px, baseline_m, max_depth_m)
-    return io.downscale_depth(depth, downscale)
+    return realio.downscale_depth(depth, downscale)
 
 
 class DepthCache:
@@ -178,17 +176,12 @@ class DepthCache:
                 os.unlink(tmp)
 
 
-def cache_from_cfg(cfg: Mapping[str, Any], dataset: str) -> DepthCache:
-    """``cache_dir`` from the config (missing key -> default, null -> disabled)."""
-    return DepthCache(cfg.get("cache_dir", DEFAULT_CACHE_DIR), dataset)
-
-
 def _file_id(path: Path) -> list[Any]:
     st = path.stat() if path.exists() else None
     return [str(path.resolve()), st.st_size if st else None, st.st_mtime_ns if st else None]
 
 
-class StereoSequence(Sequence):
+class StereoSequence(TimedSequence):
     """A left camera with depth from its stereo partner; frames are read (and matched) lazily.
 
     ``rectify(img, side)`` (side 0 = left, 1 = right) maps a raw image into the rectified pair
@@ -216,12 +209,10 @@ class StereoSequence(Sequence):
         raw_size: tuple[int, int] | None = None,  # (width, height) of raw images; default full_size
         key_extra: Mapping[str, Any] | None = None,
     ) -> None:
+        super().__init__(name, timestamps_s, gt_c2w)
         self.dataset = dataset
-        self.name = name
         self.left_paths = left_paths
         self.right_paths = right_paths
-        self.timestamps_s = np.asarray(timestamps_s, dtype=np.float64)
-        self._gt = gt_c2w
         self.K_full = np.asarray(K_full, dtype=np.float64)
         self.baseline_m = float(baseline_m)
         self.full_width, self.full_height = full_size
@@ -233,24 +224,12 @@ class StereoSequence(Sequence):
         self.rectify = rectify
         self.raw_width, self.raw_height = raw_size or full_size
         self.key_extra = dict(key_extra or {})
-        self.width, self.height = io.downscaled_size(self.full_width, self.full_height, downscale)
-        self.K = torch.from_numpy(io.scale_K(self.K_full, downscale)).float()
-
-    def __len__(self) -> int:
-        return len(self.left_paths)
-
-    @property
-    def has_gt(self) -> bool:
-        return self._gt is not None
-
-    @property
-    def gt_poses(self) -> torch.Tensor | None:
-        """All ground-truth c2w [N, 4, 4] float64 without decoding any image (for evaluation)."""
-        return None if self._gt is None else torch.from_numpy(self._gt.copy())
+        self.width, self.height = realio.downscaled_size(self.full_width, self.full_height, downscale)
+        self.K = torch.from_numpy(realio.scale_K(self.K_full, downscale)).float()
 
     def _read(self, path: Path, side: int, colour: bool) -> np.ndarray:
-        img = io.read_image(path, self.dataset, "color" if colour else "gray")
-        io.check_size(img, path, self.raw_width, self.raw_height, self.dataset)  # must match the calibration
+        img = realio.read_image(path, self.dataset, "color" if colour else "gray")
+        realio.check_size(img, path, self.raw_width, self.raw_height, self.dataset)  # must match the calibration
         return img if self.rectify is None else self.rectify(img, side)
 
     def depth_key(self, i: int) -> str:
@@ -291,15 +270,6 @@ class StereoSequence(Sequence):
         self.cache.save(key, depth)
         return depth
 
-    def __getitem__(self, i: int) -> Frame:
-        if not -len(self) <= i < len(self):
-            raise IndexError(f"{self.name}: frame {i} out of range for {len(self)} frames")
-        i %= len(self)
+    def load(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
         left = self._read(self.left_paths[i], 0, self.colour)
-        return Frame(
-            index=i,
-            timestamp_s=float(self.timestamps_s[i]),
-            rgb=io.rgb_tensor(left, self.downscale),
-            depth_m=torch.from_numpy(self.depth(i, left)),
-            gt_c2w=None if self._gt is None else torch.from_numpy(self._gt[i].copy()),
-        )
+        return realio.rgb_tensor(left, self.downscale), torch.from_numpy(self.depth(i, left))

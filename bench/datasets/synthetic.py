@@ -21,7 +21,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from bench.datasets.base import Frame, Sequence
+from bench.config import as_config
+from bench.datasets.base import DatasetConfig, TimedSequence
 from bench.errors import ConfigError
 
 CAMERA_HEIGHT_M = 1.6
@@ -108,68 +109,77 @@ def camera_path(n_frames: int, speed_m_per_frame: float, sway_m: float) -> np.nd
     return poses
 
 
-class SyntheticSequence(Sequence):
+@dataclass
+class SyntheticConfig(DatasetConfig):
+    """``dataset=synthetic``: the scene and the drive; ``seq`` (an integer as a string) overrides ``seed``."""
+
+    name: str = "synthetic"
+    seed: int = 0  # the scene layout (which street); the run's seed does not change it
+    width: int = 160  # px
+    height: int = 96  # px
+    n_frames: int = 40  # a drive of n_frames x speed_m_per_frame
+    speed_m_per_frame: float = 0.5
+    sway_m: float = 1.5
+    fov_deg: float = 80.0
+    supersample: int = 2  # rays per pixel along each axis
+    fps_hz: float = 10.0
+    run_seed: int = 0  # the run's seed (conf/dataset/synthetic.yaml links it): texture and sensor noise
+    rgb_noise_std: float = 0.0  # Gaussian colour noise per pixel (0-1 scale), drawn per (run_seed, frame); 0 = off
+    depth_noise_rel: float = 0.0  # Gaussian depth noise, std as a fraction of depth; 0 = off
+
+    def __post_init__(self) -> None:
+        if self.width < 16 or self.height < 16 or self.n_frames < 2:
+            raise ConfigError(
+                f"synthetic dataset: expected width, height >= 16 and n_frames >= 2, found "
+                f"{self.width}x{self.height}, {self.n_frames} frames"
+            )
+        if self.rgb_noise_std < 0 or self.depth_noise_rel < 0:
+            raise ConfigError(
+                f"synthetic noise: expected rgb_noise_std and depth_noise_rel >= 0, found "
+                f"{self.rgb_noise_std} and {self.depth_noise_rel}"
+            )
+
+    def default_sequence(self) -> str:
+        return str(self.scene_seed())
+
+    def scene_seed(self) -> int:
+        if self.seq in (None, "", "default"):
+            return self.seed
+        try:
+            return int(self.seq)
+        except ValueError:
+            raise ConfigError(f"synthetic seq: expected an integer seed, found '{self.seq}'") from None
+
+
+class SyntheticSequence(TimedSequence):
     """Ray-cast RGB-D frames of the driving scene; frames are rendered on demand and cached."""
 
-    def __init__(
-        self,
-        width: int,
-        height: int,
-        n_frames: int,
-        seed: int,
-        speed_m_per_frame: float,
-        sway_m: float,
-        fov_deg: float,
-        supersample: int,
-        fps_hz: float,
-        run_seed: int = 0,
-        rgb_noise_std: float = 0.0,
-        depth_noise_rel: float = 0.0,
-    ):
-        if width < 16 or height < 16 or n_frames < 2:
-            raise ConfigError(
-                f"synthetic dataset needs width, height >= 16 and n_frames >= 2, got "
-                f"{width}x{height}, {n_frames} frames"
-            )
-        if rgb_noise_std < 0 or depth_noise_rel < 0:
-            raise ConfigError(
-                f"synthetic noise must be >= 0, got rgb_noise_std={rgb_noise_std}, depth_noise_rel={depth_noise_rel}"
-            )
-        self.name = f"synthetic/{seed}"
+    def __init__(self, cfg: SyntheticConfig) -> None:
+        seed = cfg.scene_seed()
+        width, height, n_frames = cfg.width, cfg.height, cfg.n_frames
+        self.poses = camera_path(n_frames, cfg.speed_m_per_frame, cfg.sway_m)
+        super().__init__(f"synthetic/{seed}", np.arange(n_frames) / cfg.fps_hz, self.poses)
         self.width, self.height, self.seed = width, height, seed
-        self.run_seed = run_seed
+        self.run_seed = cfg.run_seed
         # run_seed 0 keeps the texture of the scene seed alone (the scenes of earlier versions)
-        self._texture_seed = seed + 7919 * run_seed
-        self.rgb_noise_std, self.depth_noise_rel = rgb_noise_std, depth_noise_rel
-        self.supersample = supersample
-        self.fps_hz = fps_hz
-        fx = 0.5 * width / math.tan(math.radians(fov_deg) / 2)
+        self._texture_seed = seed + 7919 * cfg.run_seed
+        self.rgb_noise_std, self.depth_noise_rel = cfg.rgb_noise_std, cfg.depth_noise_rel
+        self.supersample = cfg.supersample
+        fx = 0.5 * width / math.tan(math.radians(cfg.fov_deg) / 2)
         self.K = torch.tensor([[fx, 0, (width - 1) / 2], [0, fx, (height - 1) / 2], [0, 0, 1]], dtype=torch.float32)
-        self.poses = camera_path(n_frames, speed_m_per_frame, sway_m)
-        self.boxes = _scene(seed, n_frames * speed_m_per_frame)
+        self.boxes = _scene(seed, n_frames * cfg.speed_m_per_frame)
         self._lo = np.stack([b.lo for b in self.boxes])  # [B, 3]
         path = self.poses[:, :3, 3]
         self._sky_centre = np.array([0.0, CAMERA_HEIGHT_M, 0.5 * (path[0, 2] + path[-1, 2])])
         self._sky_radius = 0.5 * abs(path[-1, 2] - path[0, 2]) + SKY_RADIUS_M
         self._hi = np.stack([b.hi for b in self.boxes])
-        self._cache: dict[int, Frame] = {}
+        self._cache: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
 
-    def __len__(self) -> int:
-        return len(self.poses)
-
-    def __getitem__(self, i: int) -> Frame:
-        if not 0 <= i < len(self):
-            raise IndexError(i)
+    def load(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
         if i not in self._cache:
             rgb, depth = self.render(self.poses[i])
             rgb, depth = self._sensor_noise(i, rgb, depth)
-            self._cache[i] = Frame(
-                index=i,
-                timestamp_s=i / self.fps_hz,
-                rgb=torch.from_numpy(rgb.astype(np.float32)),
-                depth_m=torch.from_numpy(depth.astype(np.float32)),
-                gt_c2w=torch.from_numpy(self.poses[i].copy()),
-            )
+            self._cache[i] = torch.from_numpy(rgb.astype(np.float32)), torch.from_numpy(depth.astype(np.float32))
         return self._cache[i]
 
     def _sensor_noise(self, i: int, rgb: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -289,33 +299,12 @@ class SyntheticSequence(Sequence):
         return col.reshape(H, W, 3), t_best.reshape(H, W)
 
 
-def open_sequence(cfg: Mapping[str, Any]) -> SyntheticSequence:
+def open_sequence(cfg: SyntheticConfig | Mapping[str, Any]) -> SyntheticSequence:
     """Entry point for ``dataset=synthetic``; ``seq`` (if given) overrides the seed."""
-    seed = int(cfg.get("seed", 0)) if cfg.get("seq") in (None, "", "default") else _seed_from_seq(cfg["seq"])
-    return SyntheticSequence(
-        width=int(cfg.get("width", 160)),
-        height=int(cfg.get("height", 96)),
-        n_frames=int(cfg.get("n_frames", 60)),
-        seed=seed,
-        speed_m_per_frame=float(cfg.get("speed_m_per_frame", 0.5)),
-        sway_m=float(cfg.get("sway_m", 1.5)),
-        fov_deg=float(cfg.get("fov_deg", 80.0)),
-        supersample=int(cfg.get("supersample", 2)),
-        fps_hz=float(cfg.get("fps_hz", 10.0)),
-        run_seed=int(cfg.get("run_seed", 0)),
-        rgb_noise_std=float(cfg.get("rgb_noise_std", 0.0)),
-        depth_noise_rel=float(cfg.get("depth_noise_rel", 0.0)),
-    )
+    return SyntheticSequence(as_config(SyntheticConfig, cfg))
 
 
 def canonical_seq(seq: Any) -> str:
     """The one name a sequence is recorded under: the scene seed as a plain integer ('007' -> '7')."""
     text = str(seq).strip()
     return str(int(text)) if text.lstrip("-").isdigit() else text
-
-
-def _seed_from_seq(seq: str) -> int:
-    try:
-        return int(seq)
-    except ValueError:
-        raise ConfigError(f"synthetic seq must be an integer seed, got '{seq}'") from None

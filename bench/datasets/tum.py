@@ -1,7 +1,7 @@
 """TUM RGB-D: ``<root>/<seq>/{rgb.txt,depth.txt,groundtruth.txt,rgb/,depth/}``.
 
-RGB and depth are paired like TUM's ``associate.py`` (greedy, closest first, within
-``max_diff_s``); each pair takes the nearest ground-truth pose to its RGB timestamp within
+Each RGB image takes the depth image nearest in time within ``max_diff_s`` (evo's timestamp
+matching, as for the ATE); each pair takes the nearest ground-truth pose to its RGB timestamp within
 ``gt_max_diff_s``. Frames without one are dropped with a log line (``gt_missing: drop``) or
 raise (``gt_missing: error``); without a groundtruth.txt has_gt is False. Depth PNGs are 16-bit,
 metres = value / ``depth_scale`` (5000), 0 = no reading. Intrinsics come from the config by
@@ -14,14 +14,16 @@ from __future__ import annotations
 import logging
 import re
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
-from bench.datasets import _realio as io
-from bench.datasets.base import Frame, Sequence
+from bench.config import as_config
+from bench.datasets import _realio as realio
+from bench.datasets.base import RecordedConfig, Sequence, TimedSequence
 from bench.errors import ConfigError, DatasetError
 from bench.stamps import order_problem
 
@@ -35,6 +37,28 @@ DEFAULT_INTRINSICS = {
     "fr3": [535.4, 539.2, 320.1, 247.6],
     "default": [525.0, 525.0, 319.5, 239.5],  # ROS default, for sequences not named freiburgN
 }
+
+
+@dataclass
+class TumConfig(RecordedConfig, realio.GroundTruthPolicy):
+    """``dataset=tum``: TUM RGB-D (see datasets/tum/README.md); depth from the Kinect's 16-bit PNGs."""
+
+    name: str = "tum"
+    root: str = "data/tum"  # holds rgbd_dataset_freiburgN_*/
+    default_seq: str = "rgbd_dataset_freiburg1_desk"  # folder name, or short form fr1_desk
+    downscale: int = 2  # 640x480 -> 320x240; K scaled to match
+    max_depth_m: float | None = 10.0  # Kinect readings beyond this are set to 0; None keeps all
+    max_diff_s: float = 0.02  # rgb <-> depth association (TUM associate.py's default tolerance)
+    depth_scale: float = 5000.0  # PNG value per metre
+    # [fx, fy, cx, cy] at 640x480, picked by the freiburgN in the sequence name
+    intrinsics: dict[str, list[float]] = field(default_factory=lambda: dict(DEFAULT_INTRINSICS))
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.check_policy(self.name)
+        for key in ("max_diff_s", "depth_scale"):
+            if not getattr(self, key) > 0:
+                raise ConfigError(f"tum {key}: expected a positive number, found {getattr(self, key)}")
 
 
 def resolve_seq(seq: str) -> str:
@@ -63,8 +87,8 @@ def read_list(
     """
     if not path.is_file():
         raise DatasetError(
-            f"tum {what} missing: expected {path}, found {io.listing(path.parent)} in {path.parent}; "
-            f"{io.readme(DATASET)}"
+            f"tum {what} missing: expected {path}, found {realio.listing(path.parent)} in {path.parent}; "
+            f"{realio.readme(DATASET)}"
         )
     stamps, rest, linenos = [], [], []
     for lineno, line in enumerate(path.read_text().splitlines(), 1):
@@ -85,7 +109,7 @@ def read_list(
         rest.append(parts[1:])
         linenos.append(lineno)
     arr = np.array(stamps, dtype=np.float64)
-    io.check_finite_rows(arr[:, None], path, DATASET, what, line_numbers=linenos)
+    realio.check_finite_rows(arr[:, None], path, DATASET, what, line_numbers=linenos)
     problem = order_problem(arr, linenos)
     if problem:
         raise DatasetError(f"tum {what} {path} {problem}")
@@ -96,12 +120,12 @@ def read_groundtruth(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """groundtruth.txt (t tx ty tz qx qy qz qw) -> (timestamps [M] s, c2w [M, 4, 4] float64)."""
     stamps, rest, lines = read_list(path, 8, "ground truth", numeric=True)
     values = np.array(rest, dtype=np.float64).reshape(-1, 7)  # [M, 7]
-    io.check_finite_rows(values, path, DATASET, "ground truth", line_numbers=lines)
+    realio.check_finite_rows(values, path, DATASET, "ground truth", line_numbers=lines)
     q_wxyz = values[:, [6, 3, 4, 5]]
-    return stamps, io.poses_from_tq(values[:, :3], q_wxyz, path, DATASET)
+    return stamps, realio.poses_from_tq(values[:, :3], q_wxyz, path, DATASET)
 
 
-class TumSequence(Sequence):
+class TumSequence(TimedSequence):
     """Associated RGB + 16-bit depth frames, read lazily."""
 
     def __init__(
@@ -118,62 +142,39 @@ class TumSequence(Sequence):
         depth_scale: float,
         max_depth_m: float | None,
     ) -> None:
-        self.name = name
+        super().__init__(name, timestamps_s, gt_c2w)
         self.rgb_paths = rgb_paths
         self.depth_paths = depth_paths
-        self.timestamps_s = timestamps_s
-        self._gt = gt_c2w
         self.full_width, self.full_height = full_size
         self.downscale = downscale
         self.depth_scale = depth_scale
         self.max_depth_m = max_depth_m
-        self.width, self.height = io.downscaled_size(*full_size, downscale)
-        self.K = torch.from_numpy(io.scale_K(K_full, downscale)).float()
-
-    def __len__(self) -> int:
-        return len(self.rgb_paths)
-
-    @property
-    def has_gt(self) -> bool:
-        return self._gt is not None
-
-    @property
-    def gt_poses(self) -> torch.Tensor | None:
-        """All ground-truth c2w [N, 4, 4] float64 without decoding any image (for evaluation)."""
-        return None if self._gt is None else torch.from_numpy(self._gt.copy())
+        self.width, self.height = realio.downscaled_size(*full_size, downscale)
+        self.K = torch.from_numpy(realio.scale_K(K_full, downscale)).float()
 
     def depth(self, i: int) -> np.ndarray:
         """Depth [h, w] float32 metres of frame ``i`` (0 = invalid)."""
         path = self.depth_paths[i]
-        raw = io.read_image(path, DATASET, "unchanged")
+        raw = realio.read_image(path, DATASET, "unchanged")
         if raw.dtype != np.uint16 or raw.ndim != 2:
             chans = 1 if raw.ndim == 2 else raw.shape[2]
             raise DatasetError(
                 f"tum depth image {path}: expected a 16-bit single-channel png, found {raw.dtype} with {chans} channels"
             )
-        io.check_size(raw, path, self.full_width, self.full_height, DATASET)
+        realio.check_size(raw, path, self.full_width, self.full_height, DATASET)
         depth = raw.astype(np.float32) / self.depth_scale  # [H, W]
         if self.max_depth_m is not None:
             depth[depth > self.max_depth_m] = 0.0
-        return io.downscale_depth(depth, self.downscale)
+        return realio.downscale_depth(depth, self.downscale)
 
-    def __getitem__(self, i: int) -> Frame:
-        if not -len(self) <= i < len(self):
-            raise IndexError(f"{self.name}: frame {i} out of range for {len(self)} frames")
-        i %= len(self)
-        rgb = io.read_image(self.rgb_paths[i], DATASET, "color")
-        io.check_size(rgb, self.rgb_paths[i], self.full_width, self.full_height, DATASET)
-        return Frame(
-            index=i,
-            timestamp_s=float(self.timestamps_s[i]),
-            rgb=io.rgb_tensor(rgb, self.downscale),
-            depth_m=torch.from_numpy(self.depth(i)),
-            gt_c2w=None if self._gt is None else torch.from_numpy(self._gt[i].copy()),
-        )
+    def load(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
+        rgb = realio.read_image(self.rgb_paths[i], DATASET, "color")
+        realio.check_size(rgb, self.rgb_paths[i], self.full_width, self.full_height, DATASET)
+        return realio.rgb_tensor(rgb, self.downscale), torch.from_numpy(self.depth(i))
 
 
-def _intrinsics(cfg: Mapping[str, Any], folder: str) -> np.ndarray:
-    table = {**DEFAULT_INTRINSICS, **dict(cfg.get("intrinsics") or {})}
+def _intrinsics(cfg: TumConfig, folder: str) -> np.ndarray:
+    table = {**DEFAULT_INTRINSICS, **cfg.intrinsics}
     key = camera_key(folder)
     values = table.get(key, table["default"])
     try:
@@ -183,23 +184,24 @@ def _intrinsics(cfg: Mapping[str, Any], folder: str) -> np.ndarray:
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
-def open_sequence(cfg: Mapping[str, Any]) -> Sequence:
-    """Open TUM RGB-D sequence ``cfg['seq']`` (folder name or 'fr1_desk'; see conf/dataset/tum.yaml)."""
-    cfg = io.plain_cfg(cfg)
-    requested = io.seq_name(cfg)
-    root = io.resolve_root(DATASET, cfg.get("root", "data/tum"))
+def open_sequence(cfg: TumConfig | Mapping[str, Any]) -> Sequence:
+    """Open TUM RGB-D sequence ``cfg.seq`` (folder name or 'fr1_desk'; every setting: ``TumConfig``)."""
+    cfg = as_config(TumConfig, cfg)
+    requested = cfg.default_sequence()
+    root = realio.resolve_root(DATASET, cfg.root)
     folder = requested if (root / requested).is_dir() else resolve_seq(requested)
     seq_dir = root / folder
     if not (seq_dir / "rgb.txt").is_file():
         where = seq_dir if seq_dir.is_dir() else root
         raise DatasetError(
             f"tum sequence '{requested}' not found: expected {seq_dir}/rgb.txt; {where} has: "
-            f"{io.listing(where)}; {io.readme(DATASET)}"
+            f"{realio.listing(where)}; {realio.readme(DATASET)}"
         )
     rgb_s, rgb_rest, _ = read_list(seq_dir / "rgb.txt", 2, "rgb list")
     depth_s, depth_rest, _ = read_list(seq_dir / "depth.txt", 2, "depth list")
-    max_diff_s = io.get_float(cfg, "max_diff_s", 0.02, DATASET, allow_none=False)
-    pairs = io.associate_greedy(rgb_s, depth_s, max_diff_s)
+    max_diff_s = cfg.max_diff_s
+    depth_of = realio.associate_nearest(rgb_s, depth_s, max_diff_s)  # [N] index into depth, -1 = none
+    pairs = [(i, int(j)) for i, j in enumerate(depth_of) if j >= 0]
     if not pairs:
         raise DatasetError(
             f"tum sequence '{folder}': expected rgb and depth timestamps within {max_diff_s} s, found "
@@ -222,9 +224,8 @@ def open_sequence(cfg: Mapping[str, Any]) -> Sequence:
     gt = None
     if gt_path.is_file():
         gt_s, T_w_c = read_groundtruth(gt_path)
-        gt_max_diff_s = io.get_float(cfg, "gt_max_diff_s", 0.02, DATASET, allow_none=False)
-        assoc = io.associate_nearest(times_s, gt_s, gt_max_diff_s)
-        keep = io.apply_gt_policy(assoc, times_s, cfg, DATASET, gt_path, LOG)
+        assoc = realio.associate_nearest(times_s, gt_s, cfg.gt_max_diff_s)
+        keep = realio.apply_gt_policy(assoc, times_s, cfg, DATASET, gt_path, LOG)
         gt = T_w_c[assoc[keep]]
         times_s = times_s[keep]
         rgb_paths = [p for p, k in zip(rgb_paths, keep, strict=True) if k]
@@ -232,9 +233,9 @@ def open_sequence(cfg: Mapping[str, Any]) -> Sequence:
     else:
         LOG.info("tum %s: no ground truth at %s; has_gt is False", folder, gt_path)
 
-    first = io.read_image(rgb_paths[0], DATASET, "color")
+    first = realio.read_image(rgb_paths[0], DATASET, "color")
     height, width = first.shape[:2]
-    idx = io.select(len(rgb_paths), cfg, DATASET, LOG)
+    idx = realio.select(len(rgb_paths), cfg, LOG)
     sequence = TumSequence(
         name=f"tum/{folder}",
         rgb_paths=[rgb_paths[i] for i in idx],
@@ -243,9 +244,9 @@ def open_sequence(cfg: Mapping[str, Any]) -> Sequence:
         gt_c2w=None if gt is None else gt[idx],
         K_full=_intrinsics(cfg, folder),
         full_size=(width, height),
-        downscale=io.get_int(cfg, "downscale", 1, DATASET, minimum=1) or 1,
-        depth_scale=io.get_float(cfg, "depth_scale", 5000.0, DATASET, allow_none=False),
-        max_depth_m=io.get_float(cfg, "max_depth_m", 10.0, DATASET),
+        downscale=cfg.downscale,
+        depth_scale=cfg.depth_scale,
+        max_depth_m=cfg.max_depth_m,
     )
     texts = [seq_dir / "rgb.txt", seq_dir / "depth.txt"] + ([gt_path] if gt is not None else [])
     sequence.source_files = (*texts, *sequence.rgb_paths, *sequence.depth_paths)

@@ -26,6 +26,7 @@ from bench.stamps import order_problem
 
 ALIGNMENTS = ("se3", "sim3", "none")
 MIN_POSES = 3  # Umeyama needs 3 non-collinear points; fewer is not a trajectory error
+MAX_DIFF_S = 0.01  # estimate <-> ground-truth timestamp association (the run's eval.max_diff_s default)
 
 
 @dataclass
@@ -157,16 +158,35 @@ def _associate_align(
             f"(max timestamp difference {max_diff_s} s; estimate {len(est)} poses, ground truth {len(gt)})"
         )
     if align != "none":
-        try:
-            traj_est.align(traj_ref, correct_scale=(align == "sim3"))
-        except Exception as exc:  # evo's GeometryException / numpy LinAlgError on degenerate input
-            raise MetricError(
-                f"{align} alignment failed on {count} poses: {str(exc).splitlines()[0].lower()}"
-            ) from None
+        _align(traj_est, traj_ref, align)
     return traj_ref, traj_est
 
 
-def ate(est: Trajectory, gt: Trajectory, align: str = "se3", max_diff_s: float = 0.01) -> dict:
+def _align(traj_est: PoseTrajectory3D, traj_ref: PoseTrajectory3D, align: str) -> tuple[np.ndarray, np.ndarray, float]:
+    """evo's Umeyama alignment of ``traj_est`` onto ``traj_ref`` in place: (R [3, 3], t [3], scale)."""
+    try:
+        rot, trans, scale = traj_est.align(traj_ref, correct_scale=(align == "sim3"))
+    except Exception as exc:  # evo's GeometryException / numpy LinAlgError on degenerate input
+        raise MetricError(
+            f"{align} alignment failed on {traj_ref.num_poses} poses: {str(exc).splitlines()[0].lower()}"
+        ) from None
+    return rot, trans, float(scale)
+
+
+def aligned_positions(est: Trajectory, gt: Trajectory | None, align: str = "se3", max_diff_s: float = MAX_DIFF_S
+                      ) -> np.ndarray:
+    """[N, 3] every estimated position in the ground-truth frame, aligned as ``ate`` aligns.
+
+    The alignment is fitted on the associated poses only and applied to all of them (for plots).
+    """
+    if gt is None or align == "none":
+        return est.positions_m.copy()
+    traj_ref, traj_est = _associate_align(est, gt, "none", max_diff_s)
+    rot, trans, scale = _align(traj_est, traj_ref, align)
+    return scale * est.positions_m @ rot.T + trans
+
+
+def ate(est: Trajectory, gt: Trajectory, align: str = "se3", max_diff_s: float = MAX_DIFF_S) -> dict:
     """Absolute trajectory error (translation part) after ``se3``/``sim3``/``none`` alignment.
 
     ``sim3`` is for monocular-scale estimates; ``se3`` matches the TUM/evo convention.
@@ -184,7 +204,9 @@ def ate(est: Trajectory, gt: Trajectory, align: str = "se3", max_diff_s: float =
     }
 
 
-def rpe(est: Trajectory, gt: Trajectory, align: str = "se3", max_diff_s: float = 0.01, delta_frames: int = 1) -> dict:
+def rpe(
+    est: Trajectory, gt: Trajectory, align: str = "se3", max_diff_s: float = MAX_DIFF_S, delta_frames: int = 1
+) -> dict:
     """Relative pose error between poses ``delta_frames`` apart (drift per step).
 
     Rigid alignment does not change RPE; ``sim3`` matters because it fixes the scale first.
@@ -208,4 +230,4 @@ def rpe(est: Trajectory, gt: Trajectory, align: str = "se3", max_diff_s: float =
     return out
 
 
-__all__ = ["Trajectory", "ate", "read_tum", "rpe", "write_tum"]
+__all__ = ["MAX_DIFF_S", "Trajectory", "aligned_positions", "ate", "read_tum", "rpe", "write_tum"]

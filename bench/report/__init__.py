@@ -3,7 +3,7 @@
 ``python -m bench.report SWEEP_DIR ... --out reports/NAME [--paper] [--baseline none]``
 """
 
+from bench.errors import ReportError
 from bench.report.build import ReportResult, make_report
-from bench.report.collect import ReportError
 
 __all__ = ["ReportError", "ReportResult", "make_report"]

@@ -12,7 +12,8 @@ from pathlib import Path
 import pandas as pd
 import yaml
 
-from bench.report.collect import ReportError, collect
+from bench.errors import ReportError
+from bench.report.collect import collect
 from bench.report.names import use_method_names
 from bench.report.paper import load_paper_tables
 from bench.report.plots import DPI, make_plots

@@ -16,31 +16,24 @@ from typing import Any
 
 import pandas as pd
 
+from bench import schema
 from bench.datasets import canonical_seq
-from bench.errors import BenchError
+from bench.errors import ReportError
 from bench.record import is_leftover
 from bench.report.names import method_name
 
-STATUSES: tuple[str, ...] = ("ok", "lost", "failed", "interrupted", "running")
-UNFINISHED: tuple[str, ...] = ("running", "interrupted")  # left out of tables and plots
-RUN_KEYS: tuple[str, ...] = ("strategy", "dataset", "seq", "seed", "keep_ratio", "slam_preset", "config_hash")
 REQUIRED_RUN_KEYS: tuple[str, ...] = ("strategy", "dataset")
-DEFAULT_SEQ = "default"  # the harness writes seq null when a dataset ran its default sequence
+DEFAULT_SEQ = "default"  # the harness writes seq null when a dataset has no named default sequence
 DEFAULT_PRESET = "default"  # runs written before slam_preset existed used the default backend
-# Known metrics in the harness's order; unknown numeric metrics are kept and appended.
+# The metrics every row has, first and in this order (names from bench.schema, which says which are
+# numbers); any other metric a run wrote is kept and appended.
 METRIC_KEYS: tuple[str, ...] = (
     "ate_rmse_m", "ate_alignment", "ate_num_poses", "psnr_db", "ssim", "lpips", "eval_frames",
     "fps", "slam_wall_s", "refine_s", "num_frames", "num_keyframes", "gaussians_final", "gaussians_peak",
     "gaussians_added_total", "gaussians_pruned_total", "prune_candidates_total",
     "state_peak_mib", "cpu_rss_peak_mib", "torch_live_peak_mib", "cuda_alloc_peak_mib",
-    "cuda_reserved_peak_mib", "peak_mem_mib",
+    "cuda_reserved_peak_mib", schema.PEAK_FIELD,
 )  # fmt: skip
-TEXT_METRICS: frozenset[str] = frozenset({"ate_alignment"})
-NUMERIC_METRICS: frozenset[str] = frozenset(METRIC_KEYS) - TEXT_METRICS
-
-
-class ReportError(BenchError):
-    """Report inputs are missing or malformed (no run dirs, bad metrics.json, bad arguments)."""
 
 
 @dataclass
@@ -60,11 +53,11 @@ def find_run_dirs(roots: Iterable[Path]) -> list[Path]:
         if not root.exists():
             raise ReportError(f"sweep dir not found: expected an existing dir, found no '{root}'")
         if root.is_file():
-            if root.name != "metrics.json":
+            if root.name != schema.METRICS_FILE:
                 raise ReportError(f"expected a sweep or run dir, found the file '{root}'")
             candidates = [root]
         else:
-            candidates = sorted(root.rglob("metrics.json"))
+            candidates = sorted(root.rglob(schema.METRICS_FILE))
         for metrics in candidates:
             found.setdefault(metrics.parent.resolve(), metrics.parent)
     return sorted(found.values(), key=lambda p: str(p))
@@ -84,7 +77,7 @@ def _flat_metrics(metrics: dict[str, Any]) -> dict[str, Any]:
     ``key.sub``, lists as json text."""
     out: dict[str, Any] = {}
     for key, value in metrics.items():
-        if key in NUMERIC_METRICS:
+        if key in schema.NUMERIC_METRICS:
             out[key] = _number(key, value)
         elif isinstance(value, dict):
             for sub, item in value.items():
@@ -98,7 +91,7 @@ def _flat_metrics(metrics: dict[str, Any]) -> dict[str, Any]:
 
 def read_run(run_dir: Path) -> dict[str, Any]:
     """One flat row from ``run_dir/metrics.json``; ``ReportError`` says what is malformed."""
-    path = Path(run_dir) / "metrics.json"
+    path = Path(run_dir) / schema.METRICS_FILE
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except OSError as exc:
@@ -110,8 +103,8 @@ def read_run(run_dir: Path) -> dict[str, Any]:
     status = data.get("status")
     if status == "running" and is_leftover(data):
         status = "interrupted"  # its process is gone: killed (SIGKILL, power) before it could say so
-    if status not in STATUSES:
-        raise ReportError(f"expected status one of {'|'.join(STATUSES)} in {path}, found {status!r}")
+    if status not in schema.STATUSES:
+        raise ReportError(f"expected status one of {'|'.join(schema.STATUSES)} in {path}, found {status!r}")
     run = data.get("run")
     if not isinstance(run, dict) or any(run.get(k) in (None, "") for k in REQUIRED_RUN_KEYS):
         keys = sorted(run) if isinstance(run, dict) else type(run).__name__
@@ -147,10 +140,8 @@ def read_run(run_dir: Path) -> dict[str, Any]:
     for key in METRIC_KEYS:
         row[key] = values.pop(key, None)
     for key, value in sorted(values.items()):
-        if key not in row:
+        if key not in row:  # metrics.keep_ratio repeats run.keep_ratio (bench.schema): the run key stands
             row[key] = value
-        elif row[key] != value:  # e.g. metrics.keep_ratio disagreeing with run.keep_ratio
-            row[f"metrics.{key}"] = value
     provenance = data.get("provenance") if isinstance(data.get("provenance"), dict) else {}
     for key in ("git_commit", "git_dirty", "device"):
         row[key] = provenance.get(key)
@@ -196,7 +187,7 @@ def collect(roots: Iterable[Path]) -> Collection:
         warnings.append(
             f"duplicate run {dict(zip(keys, key, strict=True))} in {', '.join(group['path'])}: all are counted as seeds"
         )
-    for status in UNFINISHED:
+    for status in schema.UNFINISHED:
         n = int((runs["status"] == status).sum())
         if n:
             what = "still running" if status == "running" else "interrupted"

@@ -10,7 +10,7 @@ from importlib import resources
 
 import pandas as pd
 
-from bench.report.collect import ReportError
+from bench.errors import ReportError
 
 PAPER_CSV = "paper_tables.csv"
 PAPER_COLUMNS: tuple[str, ...] = ("table", "dataset", "method", "metric", "sequence", "value")

@@ -23,19 +23,16 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import FormatStrFormatter
 
-from bench.report.collect import ReportError, is_missing
+from bench import schema
+from bench.errors import MetricError, ReportError
+from bench.metrics.trajectory import MAX_DIFF_S, Trajectory, aligned_positions, read_tum
+from bench.report.collect import is_missing
 from bench.report.names import STRATEGY_ORDER, dataset_name, file_token, method_name, sequence_sort_key
 from bench.report.tables import Variant, variant_runs, variants
 
 Warn = Callable[[str], None]
 DPI = 110
-# Which keyframes.csv column holds "the" peak figure, when metrics.json does not tell: the device
-# memory if there was one, else torch's live tensors, else the process RSS.
-PEAK_COLUMNS: tuple[str, ...] = (
-    "cuda_alloc_peak_mib", "torch_live_peak_mib", "cuda_reserved_peak_mib", "cpu_rss_peak_mib",
-)  # fmt: skip
 DENSITY_CELLS = 160  # heatmap cells along the longer image side (Fig. 4 is a coarse heatmap too)
-ASSOCIATE_MAX_DT_S = 0.02  # TUM benchmark default for matching estimate and ground-truth stamps
 
 
 MARKERS: tuple[str, ...] = ("o", "s", "^", "D", "v", "P")
@@ -103,7 +100,7 @@ def representative(runs: pd.DataFrame) -> pd.Series | None:
 
 
 def read_keyframes(run_dir: Path, warn: Warn) -> pd.DataFrame | None:
-    path = Path(run_dir) / "keyframes.csv"
+    path = Path(run_dir) / schema.KEYFRAMES_FILE
     if not path.is_file():
         return None
     try:
@@ -118,19 +115,10 @@ def read_keyframes(run_dir: Path, warn: Warn) -> pd.DataFrame | None:
 
 
 def peak_column(run: pd.Series, keyframes: pd.DataFrame) -> str | None:
-    """The keyframes.csv column behind the run's headline ``peak_mem_mib``: the one the harness
-    names in ``peak_mem_source``, else the one whose run peak equals the headline."""
-    headline = run.get("peak_mem_mib")
-    present = [c for c in PEAK_COLUMNS if c in keyframes.columns and keyframes[c].notna().any()]
-    source = run.get("peak_mem_source")
-    if not is_missing(source) and f"{source}_peak_mib" in present:
-        return f"{source}_peak_mib"
-    if not is_missing(headline):
-        for column in present:
-            value = run.get(column)
-            if not is_missing(value) and math.isclose(float(value), float(headline), rel_tol=1e-3):
-                return column
-    return present[0] if present else None
+    """The keyframes.csv column behind the run's headline ``peak_mem_mib``: the one its
+    ``peak_mem_source`` names (``bench.schema.PEAK_SOURCES``), if the file holds values there."""
+    column = schema.peak_column(run.get(schema.PEAK_SOURCE_FIELD))
+    return column if column in keyframes.columns and keyframes[column].notna().any() else None
 
 
 def plot_memory_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn) -> Path | None:
@@ -203,64 +191,30 @@ def plot_memory_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Pa
     return _save(fig, out / f"memory_per_keyframe_{file_token(dataset)}_{file_token(seq)}.png")
 
 
-def read_tum(path: Path, warn: Warn) -> np.ndarray | None:
-    """``[N, 8]`` rows ``t tx ty tz qx qy qz qw`` sorted by time, or None (warned) if unusable."""
+def read_trajectory(path: Path, warn: Warn) -> Trajectory | None:
+    """A run's TUM trajectory, or None (warned when the file exists but is unusable)."""
     if not path.is_file():
         return None
     try:
-        data = np.loadtxt(path, comments="#", ndmin=2, dtype=float)
-    except (OSError, ValueError) as exc:
-        warn(f"skipped {path} in plots: expected TUM rows 't tx ty tz qx qy qz qw', found {exc}")
+        return read_tum(path)
+    except MetricError as exc:
+        warn(f"skipped {path} in plots: {exc}")
         return None
-    if data.shape[0] == 0 or data.shape[1] != 8:
-        warn(f"skipped {path} in plots: expected 8 columns, found shape {data.shape}")
-        return None
-    return data[np.argsort(data[:, 0], kind="stable")]
 
 
-def associate(
-    t_est: np.ndarray, t_gt: np.ndarray, max_dt_s: float = ASSOCIATE_MAX_DT_S
-) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs matching each estimate stamp with the nearest ground-truth stamp."""
-    right = np.clip(np.searchsorted(t_gt, t_est), 0, len(t_gt) - 1)
-    left = np.clip(right - 1, 0, len(t_gt) - 1)
-    nearest = np.where(np.abs(t_gt[left] - t_est) <= np.abs(t_gt[right] - t_est), left, right)
-    ok = np.abs(t_gt[nearest] - t_est) <= max_dt_s
-    return np.flatnonzero(ok), nearest[ok]
-
-
-def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool) -> tuple[float, np.ndarray, np.ndarray]:
-    """``(s, R, t)`` minimising ``|dst - (s R src + t)|`` (Umeyama 1991), as ATE aligns."""
-    mu_s, mu_d = src.mean(0), dst.mean(0)
-    xs, xd = src - mu_s, dst - mu_d
-    u, d, vt = np.linalg.svd(xd.T @ xs / len(src))
-    sign = np.eye(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:
-        sign[2, 2] = -1.0
-    rot = u @ sign @ vt
-    var_s = (xs**2).sum() / len(src)
-    scale = float(np.trace(np.diag(d) @ sign) / var_s) if with_scale and var_s > 0 else 1.0
-    return scale, rot, mu_d - scale * rot @ mu_s
-
-
-def aligned_positions(
-    est: np.ndarray, gt: np.ndarray | None, alignment: str, max_dt_s: float = ASSOCIATE_MAX_DT_S
-) -> np.ndarray:
-    """Estimated positions in the ground-truth frame, aligned the way the ATE was computed."""
-    xyz = est[:, 1:4]
-    if gt is None or alignment not in ("se3", "sim3"):
-        return xyz
-    i_est, i_gt = associate(est[:, 0], gt[:, 0], max_dt_s)
-    if len(i_est) < 3:
-        return xyz
-    s, rot, t = umeyama(xyz[i_est], gt[i_gt, 1:4], with_scale=alignment == "sim3")
-    return (s * (rot @ xyz.T)).T + t
+def _aligned(est: Trajectory, gt: Trajectory | None, alignment: str, max_dt: float, warn: Warn) -> np.ndarray:
+    """[N, 3] estimate positions aligned as for the ATE; unaligned (warned) where that fails."""
+    try:
+        return aligned_positions(est, gt, alignment, max_dt)
+    except MetricError as exc:
+        warn(f"trajectory shown unaligned: {exc}")
+        return est.positions_m
 
 
 def plot_trajectory(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn) -> Path | None:
     """Top view of estimated vs ground-truth paths on the two axes of largest extent."""
     looks = Looks(runs)
-    gt: np.ndarray | None = None
+    gt: np.ndarray | None = None  # [M, 3] ground-truth positions
     paths: list[tuple[Variant, np.ndarray, bool]] = []
     one = runs[runs["seq"] == seq]
     for variant in variants(runs):  # dataset-wide, so labels match the tables
@@ -268,25 +222,25 @@ def plot_trajectory(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn:
         if run is None:
             continue
         run_dir = Path(run["path"])
-        est = read_tum(run_dir / "traj_est.txt", warn)
+        est = read_trajectory(run_dir / "traj_est.txt", warn)
         if est is None:
             continue
-        run_gt = read_tum(run_dir / "traj_gt.txt", warn)
-        gt = run_gt if gt is None else gt
+        run_gt = read_trajectory(run_dir / "traj_gt.txt", warn)
+        gt = run_gt.positions_m if gt is None and run_gt is not None else gt
         alignment = run.get("ate_alignment")
         alignment = "se3" if is_missing(alignment) else str(alignment)
         max_dt = run.get("ate_max_diff_s")
-        max_dt = ASSOCIATE_MAX_DT_S if is_missing(max_dt) else float(max_dt)
-        paths.append((variant, aligned_positions(est, run_gt, alignment, max_dt), run["status"] == "lost"))
+        max_dt = MAX_DIFF_S if is_missing(max_dt) else float(max_dt)
+        paths.append((variant, _aligned(est, run_gt, alignment, max_dt, warn), run["status"] == "lost"))
     if not paths:
         return None
-    extent_source = gt[:, 1:4] if gt is not None else np.vstack([p for _, p, _ in paths])
+    extent_source = gt if gt is not None else np.vstack([p for _, p, _ in paths])
     axes = sorted(np.argsort(np.ptp(extent_source, axis=0))[-2:])
     names = "xyz"
     fig = Figure(figsize=(6.0, 5.5), layout="constrained")
     ax = fig.add_subplot()
     if gt is not None:
-        ax.plot(gt[:, 1 + axes[0]], gt[:, 1 + axes[1]], "k-", lw=2.0, alpha=0.6, label="ground truth")
+        ax.plot(gt[:, axes[0]], gt[:, axes[1]], "k-", lw=2.0, alpha=0.6, label="ground truth")
     for variant, xyz, lost in paths:
         label = variant.label + (" (lost)" if lost else "")
         ax.plot(xyz[:, axes[0]], xyz[:, axes[1]], ls=looks.dash(variant), lw=1.2,

@@ -13,10 +13,11 @@ from typing import Literal
 
 import pandas as pd
 
-from bench.report.collect import UNFINISHED, is_missing
+from bench.report.collect import is_missing
 from bench.report.names import dataset_name, file_token, method_name, paper_sequence, sequence_sort_key, strategy_rank
 from bench.report.paper import LOST, PAPER_METRIC, PAPER_STRATEGY, PAPER_UNIT, paper_values
 from bench.report.stats import ALPHA, welch_p, within_noise
+from bench.schema import UNFINISHED
 
 CellKind = Literal["num", "lost", "na", "failed", "empty", "ref"]
 Better = Literal["lower", "higher"]

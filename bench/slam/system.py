@@ -35,7 +35,7 @@ log = logging.getLogger(__name__)
 class SlamConfig:
     """Backend hyperparameters; the paper's values where it gives them."""
 
-    tracking_iters: int = 50  # paper: 50 per frame
+    tracking_iters: int = 20  # from the flow + PnP start, sized for a CPU; the paper's 50: slam=paper
     # the second frame has no constant-velocity guess (it starts at the first pose), and Adam's
     # step bounds how far a pose can travel: ~0.4 x lr x iterations over the decayed schedule
     tracking_iters_first: int = 100
@@ -46,14 +46,12 @@ class SlamConfig:
     lambda_depth_map: float = 1.5  # paper
     silhouette_min: float = 0.99  # tracking uses pixels the map explains with confidence
     # which pixels tracking compares: "current" re-selects the confident ones at every iterate;
-    # "init" fixes them at the initial pose. A fixed mask left frame-1 tracking 0.08 m short of
-    # the true 0.5 m motion (the constant-velocity guess is the identity there), "current" 0.02 m.
+    # "init" fixes them at the initial pose (which falls short when the initial pose is far off).
     tracking_mask: str = "current"
     # where tracking starts: "velocity" extrapolates the last motion; "flow_pnp" (default) refines
     # that prediction with corners tracked since the previous frame and PnP on its depth
-    # (bench/slam/frontend.py), falling back to "velocity" when too few corners survive.
-    # Measured on 40 synthetic frames: "velocity" is lost at frame 16-22, "flow_pnp" ends ok at
-    # ATE 0.032 m over 19.6 m.
+    # (bench/slam/frontend.py), falling back to "velocity" when too few corners survive. Why: see
+    # the README's "Known limits" (the velocity guess alone is lost on longer drives).
     tracking_init: str = "flow_pnp"
     flow_pnp: dict[str, float] = field(default_factory=dict)  # FlowPnpConfig overrides
     depth_loss_max_m: float = 30.0  # far pixels (sky, distant road) only constrain colour
@@ -65,14 +63,13 @@ class SlamConfig:
     mapping_iters: int = 100  # paper: 100 per keyframe
     mapping_fresh_optimizer: bool = True  # new Adam moments per keyframe, as SplaTAM does
     # keyframes optimised together (current one included); None = all. Half the iterations go to the
-    # current keyframe, the rest to a random other one of the window. Measured on 40 synthetic frames
-    # (PSNR of every frame from the final map): window 5 -> 23.4 dB, all -> 24.5 dB; with 5, views of
-    # the early drive fall from 26 dB when mapped to 22 dB, overwritten by later close-ups.
+    # current keyframe, the rest to a random other one of the window. A short window lets later
+    # close-ups overwrite the views of the early drive (figures in the README's "Known limits").
     mapping_window: int | None = None
     # iterations over all keyframes once the drive is over (System.refine), timed apart from the
     # SLAM loop and not in fps; 0 = evaluate the map exactly as mapping left it
     refine_iters: int = 0
-    kf_every: int = 5  # a keyframe at least every N frames
+    kf_every: int = 3  # a keyframe at least every N frames
     kf_min_trans_m: float = 3.0  # ... or once the camera moved this far since the last one
     kf_min_rot_deg: float = 15.0  # ... or turned this much
     # Densification (new Gaussians on a keyframe). The defaults re-seed far more eagerly than
@@ -102,34 +99,34 @@ class SlamConfig:
                    "refine_iters": 0, "kf_every": 1, "densify_stride": 1}
         for name, least in minimum.items():
             if getattr(self, name) is not None and getattr(self, name) < least:
-                raise ConfigError(f"slam.{name} must be >= {least}, got {getattr(self, name)}")
+                raise ConfigError(f"slam.{name}: expected >= {least}, found {getattr(self, name)}")
         if self.densify_err_median not in ("confident", "image"):
             raise ConfigError(
-                f"slam.densify_err_median must be 'confident' or 'image', got '{self.densify_err_median}'"
+                f"slam.densify_err_median: expected 'confident' or 'image', found '{self.densify_err_median}'"
             )
         if self.densify_sigma_px is not None and not self.densify_sigma_px > 0:
-            raise ConfigError(f"slam.densify_sigma_px must be > 0 or null, got {self.densify_sigma_px}")
+            raise ConfigError(f"slam.densify_sigma_px: expected > 0 or null, found {self.densify_sigma_px}")
         if not 0.0 < self.init_opacity < 1.0:
-            raise ConfigError(f"slam.init_opacity must be in (0, 1), got {self.init_opacity}")
+            raise ConfigError(f"slam.init_opacity: expected a value in (0, 1), found {self.init_opacity}")
         if self.tracking_mask not in ("current", "init"):
-            raise ConfigError(f"slam.tracking_mask must be 'current' or 'init', got '{self.tracking_mask}'")
+            raise ConfigError(f"slam.tracking_mask: expected 'current' or 'init', found '{self.tracking_mask}'")
         if self.raster_backend not in BACKENDS:
             raise ConfigError(
-                f"slam.raster_backend must be one of {', '.join(BACKENDS)}; found '{self.raster_backend}'"
+                f"slam.raster_backend: expected one of {', '.join(BACKENDS)}, found '{self.raster_backend}'"
             )
         if self.tracking_init not in ("velocity", "flow_pnp"):
-            raise ConfigError(f"slam.tracking_init must be 'velocity' or 'flow_pnp', got '{self.tracking_init}'")
+            raise ConfigError(f"slam.tracking_init: expected 'velocity' or 'flow_pnp', found '{self.tracking_init}'")
         bad_lrs = sorted(set(self.lrs) - set(DEFAULT_LRS))
         if bad_lrs:
             raise ConfigError(
-                f"slam.lrs has no parameter {', '.join(bad_lrs)}; expected one of: {', '.join(DEFAULT_LRS)}"
+                f"slam.lrs: expected parameters among {', '.join(DEFAULT_LRS)}, found {', '.join(bad_lrs)}"
             )
         self.lrs = {**DEFAULT_LRS, **self.lrs}
         known = set(FlowPnpConfig.__dataclass_fields__)
         unknown = sorted(set(self.flow_pnp) - known)
         if unknown:
             raise ConfigError(
-                f"slam.flow_pnp has no setting {', '.join(unknown)}; expected one of: {', '.join(sorted(known))}"
+                f"slam.flow_pnp: expected settings among {', '.join(sorted(known))}, found {', '.join(unknown)}"
             )
 
 

@@ -1,4 +1,4 @@
-"""Fixtures for the real-data loader tests: configs from conf/dataset/*.yaml, tmp depth caches."""
+"""Fixtures for the real-data loader tests: conf/dataset/*.yaml overrides, tmp depth caches."""
 
 from __future__ import annotations
 
@@ -12,8 +12,9 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def load_cfg(name: str, **overrides: Any) -> dict[str, Any]:
-    """conf/dataset/<name>.yaml as a plain dict with ``overrides`` applied (top-level keys)."""
-    cfg = yaml.safe_load((REPO / "bench" / "conf" / "dataset" / f"{name}.yaml").read_text())
+    """bench/conf/dataset/<name>.yaml's own values (the loader's dataclass fills the rest) with ``overrides``."""
+    cfg = yaml.safe_load((REPO / "bench" / "conf" / "dataset" / f"{name}.yaml").read_text()) or {}
+    cfg.pop("defaults", None)
     cfg.update(overrides)
     return cfg
 

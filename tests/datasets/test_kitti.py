@@ -53,7 +53,7 @@ def test_stereo_depth_plausible(kitti_cfg):
     valid 0.66-0.68, median 10.4-12.7 m: a suburban street with houses and parked cars."""
     seq = kitti.open_sequence(kitti_cfg)
     assert (seq.width, seq.height) == (306, 92)
-    near_m = FX * seq.baseline_m / kitti_cfg["stereo"]["num_disparities"]  # ~2.97 m
+    near_m = FX * seq.baseline_m / seq.params.num_disparities  # ~2.97 m
     for i in (0, 25, 50):
         frame = seq[i]
         depth = frame.depth_m
@@ -63,7 +63,7 @@ def test_stereo_depth_plausible(kitti_cfg):
         valid = depth > 0
         assert 0.55 < valid.float().mean() < 0.85
         assert 8.0 < depth[valid].median() < 18.0
-        assert depth[valid].min() >= near_m - 1e-3 and depth.max() <= kitti_cfg["max_depth_m"]
+        assert depth[valid].min() >= near_m - 1e-3 and depth.max() <= seq.max_depth_m
         assert valid[:, :20].float().mean() < 0.05  # left border: no match within num_disparities
         assert frame.timestamp_s == pytest.approx(0.1039 * i, abs=0.02)  # ~10 Hz
 

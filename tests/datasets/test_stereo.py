@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.datasets import _realio as io
+from bench.config import as_config
+from bench.datasets import _realio as realio
 from bench.datasets.stereo import DepthCache, StereoParams, disparity_to_depth
 from bench.errors import ConfigError
 
@@ -21,14 +22,14 @@ def test_downscale_depth_takes_a_measured_value_and_needs_half_valid():
     d[:2, :2] = [[1.0, 1.0], [9.0, 9.0]]  # an edge: lower median 1.0, never the 5.0 mean
     d[:2, 2:4] = [[3.0, 0.0], [0.0, 0.0]]  # 1 of 4 valid -> invalid
     d[2:, :2] = [[2.0, 4.0], [0.0, 8.0]]  # 3 of 4 valid -> median 4.0
-    out = io.downscale_depth(d, 2)
+    out = realio.downscale_depth(d, 2)
     assert out.shape == (2, 3)
     np.testing.assert_allclose(out, [[1.0, 0.0, 0.0], [4.0, 0.0, 0.0]])
 
 
 def test_scale_k_keeps_pixel_centres():
     K = np.array([[100.0, 0, 49.5], [0, 100.0, 29.5], [0, 0, 1]])
-    K2 = io.scale_K(K, 2)  # the centre of a 100x60 image stays the centre of the 50x30 one
+    K2 = realio.scale_K(K, 2)  # the centre of a 100x60 image stays the centre of the 50x30 one
     np.testing.assert_allclose(K2, [[50.0, 0, 24.5], [0, 50.0, 14.5], [0, 0, 1]])
 
 
@@ -47,8 +48,8 @@ def test_cache_roundtrip_and_bad_entries(tmp_path):
 
 
 def test_stereo_params_validation():
-    assert StereoParams.from_cfg({"num_disparities": 64}, "kitti").num_disparities == 64
+    assert as_config(StereoParams, {"num_disparities": 64}).num_disparities == 64
     with pytest.raises(ConfigError, match="multiple of 16"):
-        StereoParams.from_cfg({"num_disparities": 50}, "kitti")
+        as_config(StereoParams, {"num_disparities": 50})
     with pytest.raises(ConfigError, match="found blocksize"):
-        StereoParams.from_cfg({"blocksize": 5}, "kitti")
+        as_config(StereoParams, {"blocksize": 5})

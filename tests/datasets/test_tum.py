@@ -10,7 +10,6 @@ import pytest
 import torch
 
 from bench.datasets import tum
-from bench.datasets._realio import associate_greedy
 from bench.errors import DatasetError
 
 W, H = 64, 48
@@ -73,7 +72,7 @@ def test_intrinsics_gt_and_downscale(cfg):
     seq = tum.open_sequence({**cfg, "seq": "fr1_test", "downscale": 2})  # short alias
     assert seq.name == "tum/rgbd_dataset_freiburg1_test"
     assert (seq.width, seq.height) == (32, 24)
-    fx, fy, cx, cy = cfg["intrinsics"]["fr1"]
+    fx, fy, cx, cy = tum.DEFAULT_INTRINSICS["fr1"]
     expected = [[fx / 2, 0, (cx + 0.5) / 2 - 0.5], [0, fy / 2, (cy + 0.5) / 2 - 0.5], [0, 0, 1]]
     np.testing.assert_allclose(seq.K.numpy(), expected, rtol=1e-6)
     gt = seq[1].gt_c2w
@@ -89,27 +88,3 @@ def test_missing_gt_at_start_drops(cfg_of, tmp_path):
     assert len(tum.open_sequence(cfg)) == 2  # rgb 10.000 and 10.033 have no pose within 0.02 s
     with pytest.raises(DatasetError, match="found none for 2 of 4 frames"):
         tum.open_sequence({**cfg, "gt_missing": "error"})
-
-
-def test_greedy_association_matches_tum_associate():
-    rng = np.random.default_rng(0)
-    a = np.sort(rng.uniform(0, 5, 80))
-    b = np.sort(rng.uniform(0, 5, 90))
-
-    def reference(first, second, max_difference):  # TUM associate.py, offset 0
-        first_keys, second_keys = list(range(len(first))), list(range(len(second)))
-        potential = sorted(
-            (abs(first[i] - second[j]), i, j)
-            for i in first_keys
-            for j in second_keys
-            if abs(first[i] - second[j]) < max_difference
-        )
-        matches = []
-        for _, i, j in potential:
-            if i in first_keys and j in second_keys:
-                first_keys.remove(i)
-                second_keys.remove(j)
-                matches.append((i, j))
-        return sorted(matches)
-
-    assert associate_greedy(a, b, 0.02) == reference(a, b, 0.02)

@@ -10,7 +10,7 @@ from evo.core import lie_algebra
 from evo.core.transformations import quaternion_from_matrix, quaternion_matrix
 
 from bench.errors import MetricError
-from bench.metrics.trajectory import Trajectory, ate, read_tum, rpe, write_tum
+from bench.metrics.trajectory import Trajectory, aligned_positions, ate, read_tum, rpe, write_tum
 
 
 def _helix(n: int = 60, seed: int = 0) -> Trajectory:
@@ -155,3 +155,22 @@ def test_from_c2w_matches_quaternions() -> None:
     assert ate(back, traj, align="none")["ate_rmse_m"] < 1e-12
     dots = np.abs(np.sum(back.quat_wxyz * traj.quat_wxyz, axis=1))
     np.testing.assert_allclose(dots, 1.0, atol=1e-12)
+
+
+def _rot(axis: np.ndarray, angle: float) -> np.ndarray:
+    axis = axis / np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+@pytest.mark.parametrize("align", ["se3", "sim3"])
+def test_every_estimated_position_is_aligned_onto_ground_truth(align):
+    t = np.arange(25) * 0.1
+    gt_xyz = np.column_stack([t, np.sin(t), 0.3 * t**2])  # [25, 3]
+    quat = np.tile([1.0, 0.0, 0.0, 0.0], (25, 1))
+    gt = Trajectory(t, gt_xyz, quat)
+    scale = 2.0 if align == "sim3" else 1.0
+    est_xyz = scale * gt_xyz[::2] @ _rot(np.array([0.0, 1.0, 0.0]), 1.0).T + 3.0  # fewer poses than the ground truth
+    est = Trajectory(t[::2] + 0.005, est_xyz, quat[::2])  # stamps within the association window
+    np.testing.assert_allclose(aligned_positions(est, gt, align), gt_xyz[::2], atol=1e-9)
+    np.testing.assert_allclose(aligned_positions(est, gt, "none"), est_xyz)

@@ -1,22 +1,21 @@
 import pytest
-from omegaconf import OmegaConf
 
+from bench.config import as_config
 from bench.errors import ConfigError
-from bench.run import slam_config
 from bench.slam.system import SlamConfig
 
 
 @pytest.mark.parametrize(
     ("kwargs", "needle"),
     [
-        ({"tracking_iters": 0}, "slam.tracking_iters must be >= 1, got 0"),
-        ({"kf_every": 0}, "slam.kf_every must be >= 1, got 0"),
-        ({"refine_iters": -1}, "slam.refine_iters must be >= 0, got -1"),
-        ({"mapping_window": 0}, "slam.mapping_window must be >= 1, got 0"),
-        ({"tracking_mask": "fixed"}, "slam.tracking_mask must be 'current' or 'init', got 'fixed'"),
-        ({"densify_err_median": "all"}, "slam.densify_err_median must be 'confident' or 'image', got 'all'"),
-        ({"densify_sigma_px": 0.0}, "slam.densify_sigma_px must be > 0 or null, got 0.0"),
-        ({"init_opacity": 1.0}, r"slam.init_opacity must be in \(0, 1\), got 1.0"),
+        ({"tracking_iters": 0}, "slam.tracking_iters: expected >= 1, found 0"),
+        ({"kf_every": 0}, "slam.kf_every: expected >= 1, found 0"),
+        ({"refine_iters": -1}, "slam.refine_iters: expected >= 0, found -1"),
+        ({"mapping_window": 0}, "slam.mapping_window: expected >= 1, found 0"),
+        ({"tracking_mask": "fixed"}, "slam.tracking_mask: expected 'current' or 'init', found 'fixed'"),
+        ({"densify_err_median": "all"}, "slam.densify_err_median: expected 'confident' or 'image', found 'all'"),
+        ({"densify_sigma_px": 0.0}, "slam.densify_sigma_px: expected > 0 or null, found 0.0"),
+        ({"init_opacity": 1.0}, r"slam.init_opacity: expected a value in \(0, 1\), found 1.0"),
     ],
 )
 def test_bad_values_name_the_setting(kwargs, needle):
@@ -25,26 +24,19 @@ def test_bad_values_name_the_setting(kwargs, needle):
 
 
 def test_unknown_setting_lists_the_known_ones():
-    with pytest.raises(ConfigError, match="slam has no setting trackng_iters; expected one of: .*tracking_iters"):
-        slam_config(OmegaConf.create({"slam": {"trackng_iters": 3}, "seed": 0}))
-
-
-def test_yaml_default_matches_dataclass_fields():
-    from bench.cli import CONF_DIR
-
-    raw = OmegaConf.to_container(OmegaConf.load(CONF_DIR / "slam" / "default.yaml"))
-    cfg = slam_config(OmegaConf.create({"slam": raw, "seed": 0}))
-    assert cfg.tracking_mask == "current"
+    needle = "SlamConfig: expected a setting among .*tracking_iters.*, found trackng_iters"
+    with pytest.raises(ConfigError, match=needle):
+        as_config(SlamConfig, {"trackng_iters": 3})
 
 
 @pytest.mark.parametrize(
     ("kwargs", "needle"),
     [
-        ({"target": "count"}, "prune.target must be one of ratio, absolute, got 'count'"),
-        ({"target": "absolute"}, "prune.target=absolute needs an integer prune.n_target >= 0, got None"),
-        ({"every": "second"}, "prune.every must be one of keyframe, frame, got 'second'"),
-        ({"grad_source": "x"}, "prune.grad_source must be one of params_last, means2d_all, got 'x'"),
-        ({"keep_ratio": 1.5}, r"prune.keep_ratio must be in \(0, 1\], got 1.5"),
+        ({"target": "count"}, "prune.target: expected one of ratio, absolute, found 'count'"),
+        ({"target": "absolute"}, "prune.n_target: expected an integer >= 0 with prune.target=absolute, found None"),
+        ({"every": "second"}, "prune.every: expected one of keyframe, frame, found 'second'"),
+        ({"grad_source": "x"}, "prune.grad_source: expected one of params_last, means2d_all, found 'x'"),
+        ({"keep_ratio": 1.5}, r"prune.keep_ratio: expected a number in \(0, 1\], found 1.5"),
     ],
 )
 def test_bad_prune_settings_name_the_setting(kwargs, needle):
@@ -54,17 +46,18 @@ def test_bad_prune_settings_name_the_setting(kwargs, needle):
         PruneConfig(**kwargs)
 
 
-def _preset(name: str) -> SlamConfig:
+def _composed(*overrides: str):
     from hydra import compose, initialize_config_dir
 
     from bench.cli import CONF_DIR
+    from bench.config import to_run_config
 
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-        return slam_config(compose(config_name="config", overrides=[f"slam={name}"]))
+        return to_run_config(compose(config_name="config", overrides=list(overrides)))
 
 
 def test_splatam_preset_is_splatams_densification_and_nothing_else():
-    default, splatam = _preset("default"), _preset("splatam")
+    default, splatam = _composed("slam=default").slam, _composed("slam=splatam").slam
     changed = {k for k in vars(default) if getattr(default, k) != getattr(splatam, k)}
     assert changed == {"name", "densify_stride", "densify_silhouette", "densify_err_median", "densify_color_err",
                        "densify_sigma_px", "init_opacity"}
@@ -73,14 +66,10 @@ def test_splatam_preset_is_splatams_densification_and_nothing_else():
 
 
 def test_released_experiment_composes_the_released_schedule():
-    from hydra import compose, initialize_config_dir
+    from bench.run import run_keys
 
-    from bench.cli import CONF_DIR
-    from bench.run import prune_config, run_keys
-
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-        cfg = compose(config_name="config", overrides=["+experiment=released", "dataset=kitti"])
-    prune = prune_config(cfg)
+    cfg = _composed("+experiment=released", "dataset=kitti")
+    prune = cfg.prune
     assert (prune.target, prune.n_target, prune.every, prune.grad_source) == ("absolute", 80000, "frame", "means2d_all")
     assert cfg.strategy.name == "pocket" and cfg.strategy.params.tile_source == "zero"
     assert run_keys(cfg)["slam_preset"] == "released"

@@ -153,11 +153,11 @@ def test_area_variants_rank_a_bigger_splat_higher(scene, area):
 
 
 @pytest.mark.parametrize(("params", "needle"), [
-    ({"area": "pixels"}, "area must be one of exact, analytic, radius; got 'pixels'"),
-    ({"budget_round": "round"}, "budget_round must be one of ceil, floor; got 'round'"),
-    ({"tile_px": 8}, "tile_px must equal the rasterizer's tile size 16; got 8"),
-    ({"budget_min": 10, "budget_max": 5}, "budget_max must be an integer >= budget_min (10)"),
-    ({"budget_min": -1}, "budget_min must be an integer >= 0"),
+    ({"area": "pixels"}, "area: expected one of exact, analytic, radius, found 'pixels'"),
+    ({"budget_round": "round"}, "budget_round: expected one of ceil, floor, found 'round'"),
+    ({"tile_px": 8}, "tile_px: expected the rasterizer's tile size 16, found 8"),
+    ({"budget_min": 10, "budget_max": 5}, "budget_max: expected an integer >= budget_min (10)"),
+    ({"budget_min": -1}, "budget_min: expected an integer >= 0"),
 ])
 def test_bad_parameters_raise_one_line_config_errors(params, needle):
     with pytest.raises(ConfigError) as err:

@@ -92,17 +92,3 @@ def test_absolute_target_is_a_count_not_a_ratio(scene):
     assert ctx.n_target == 7
     keep = load_strategy("area").after_mapping(ctx)
     assert int((keep & ctx.candidates).sum()) == 7
-
-
-@pytest.mark.parametrize("name", BUILT_INS)
-def test_new_gaussians_are_never_in_the_removal_set(scene, name):
-    groups = mixed_scene(scene)
-    strategy, ctx = prepared(scene, name, keep_ratio=0.05)
-    if name == "mask":  # hide the new Gaussians: they must survive anyway
-        with torch.no_grad():
-            ctx.gaussians.params["mask_logits"][groups["new"]] = -5.0
-        strategy = load_strategy("mask", {"masked_keyframes": 1})
-    assert not ctx.candidates[groups["new"]].any()
-    keep = strategy.after_mapping(ctx)
-    if keep is not None:
-        assert keep[groups["new"]].all()

@@ -1,0 +1,168 @@
+"""The run directory's format: every field of ``metrics.json`` and ``keyframes.csv``, with its unit.
+
+The writer (``bench.run``), the report reader (``bench.report``) and the README's run-directory
+tables all follow this module; ``tests/test_schema.py`` checks the README against ``markdown()``.
+Regenerate the README block with ``python -m bench.schema``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+METRICS_FILE = "metrics.json"
+KEYFRAMES_FILE = "keyframes.csv"
+MIB = float(2**20)  # bytes per MiB: every *_mib figure
+
+STATUSES: tuple[str, ...] = ("ok", "lost", "failed", "interrupted", "running")
+FINISHED: tuple[str, ...] = ("ok", "lost")  # a rerun of the same config skips these
+UNFINISHED: tuple[str, ...] = ("running", "interrupted")  # left out of tables and plots
+
+
+@dataclass(frozen=True)
+class Field:
+    name: str
+    unit: str  # "" for counts, names and flags
+    holds: str
+    kind: str = "number"  # number | text | object (a dict or list kept as is)
+
+
+RUN_FIELDS: tuple[Field, ...] = (
+    Field("strategy", "", "strategy name (`none` without `+strategy`)", "text"),
+    Field("dataset", "", "dataset name", "text"),
+    Field("seq", "", "sequence as written, or the dataset's default; null only if it has none", "text"),
+    Field("seed", "", "run seed"),
+    Field("keep_ratio", "", "`prune.keep_ratio` given to the strategy; null without `+strategy`"),
+    Field("slam_preset", "", "`slam.name`, the backend preset (runs of different presets never pool)", "text"),
+    Field("config_hash", "", "hash of the resolved config (what resume compares)", "text"),
+)
+
+KEYFRAME_FIELDS: tuple[Field, ...] = (
+    Field("kf", "", "keyframe index"),
+    Field("frame", "", "frame index of the keyframe"),
+    Field("n_gaussians", "", "Gaussians after pruning"),
+    Field("n_masked", "", "Gaussians kept in memory but hidden from rendering"),
+    Field("n_added", "", "Gaussians added by this keyframe's mapping"),
+    Field("n_pruned", "", "Gaussians removed by the strategy (with `prune.every=frame`: since the last keyframe)"),
+    Field("n_candidates", "", "Gaussians the strategy could prune (in view, not new), over those prune calls"),
+    Field("state_bytes", "B", "exact bytes of Gaussian state: params, grads, Adam moments, strategy state"),
+    Field("state_mib", "MiB", "`state_bytes` in MiB"),
+    Field("cpu_rss_peak_mib", "MiB", "process peak RSS in the window (VmHWM, or sampled)"),
+    Field("torch_live_peak_mib", "MiB", "peak bytes of live torch CPU tensors in the window; null on CUDA"),
+    Field("cuda_alloc_peak_mib", "MiB", "CUDA allocator peak (allocated) in the window; null on CPU"),
+    Field("cuda_reserved_peak_mib", "MiB", "CUDA allocator peak (reserved) in the window; null on CPU"),
+    Field("track_s", "s", "tracking time of the keyframe's frame"),
+    Field("map_s", "s", "mapping time"),
+    Field("prune_s", "s", "pruning time"),
+)
+KEYFRAME_COLUMNS: list[str] = [f.name for f in KEYFRAME_FIELDS]
+
+# The headline memory figure and where it comes from, by preference: what the device must hold at
+# once (the paper reads the CUDA allocator peak), else torch's live tensors, else the process RSS.
+PEAK_FIELD = "peak_mem_mib"
+PEAK_SOURCE_FIELD = "peak_mem_source"
+PEAK_SOURCES: dict[str, str] = {
+    "cuda_alloc": "cuda_alloc_peak_mib",
+    "torch_live": "torch_live_peak_mib",
+    "cpu_rss": "cpu_rss_peak_mib",
+}
+MEMORY_PEAK_COLUMNS: tuple[str, ...] = (
+    "cpu_rss_peak_mib", "torch_live_peak_mib", "cuda_alloc_peak_mib", "cuda_reserved_peak_mib",
+)  # fmt: skip
+
+METRIC_FIELDS: tuple[Field, ...] = (
+    Field("ate_rmse_m", "m", "ATE RMSE, translation part, after `ate_alignment` (evo APE)"),
+    Field("ate_mean_m", "m", "ATE mean"),
+    Field("ate_max_m", "m", "ATE max"),
+    Field("ate_alignment", "", "`se3`, `sim3` or `none`", "text"),
+    Field("ate_num_poses", "", "associated poses the ATE is over"),
+    Field("ate_max_diff_s", "s", "timestamp association window"),
+    Field("ate_first_frame", "", "first tracked frame the ATE is over (position among tracked frames)"),
+    Field("ate_last_frame", "", "last tracked frame the ATE is over (inclusive)"),
+    Field("path_length_m", "m", "ground-truth path length over the tracked frames"),
+    Field("rpe_trans_rmse_m", "m", "RPE translation RMSE (`eval.rpe=true`)"),
+    Field("rpe_rot_rmse_deg", "deg", "RPE rotation RMSE (`eval.rpe=true`)"),
+    Field("rpe_delta_frames", "", "RPE step"),
+    Field("psnr_db", "dB", "PSNR of frames rendered from the final map at the estimated poses"),
+    Field("ssim", "", "SSIM, same frames"),
+    Field("lpips", "", "LPIPS (AlexNet), null without local weights"),
+    Field("eval_frames", "", "frames the image metrics are over (`eval.every`)"),
+    Field("fps", "1/s", "frames / SLAM-loop wall time, warm-up frames excluded"),
+    Field("slam_wall_s", "s", "SLAM-loop wall time after the warm-up frames"),
+    Field("warmup_s", "s", "the warm-up frames' time (`warmup_frames`), left out of `slam_wall_s` and `fps`"),
+    Field("refine_s", "s", "final refinement time (not in `fps`)"),
+    Field("phase_s", "s", "time per phase of the frame loop (tracking, mapping, pruning), warm-up included", "object"),
+    Field("eval_s", "s", "evaluation time: ATE, rendering, PSNR/SSIM/LPIPS"),
+    Field("wall_s", "s", "the whole run, from loading to figures"),
+    Field("num_frames", "", "frames tracked"),
+    Field("keep_ratio", "", "as `run.keep_ratio` (null when nothing is pruned)"),
+    Field("num_keyframes", "", "keyframe windows (rows of keyframes.csv)"),
+    Field("gaussians_final", "", "Gaussians in the final map"),
+    Field("gaussians_peak", "", "largest `n_gaussians` over the windows"),
+    Field("gaussians_added_total", "", "sum of `n_added`: with the totals below, whether pruning shrank the map"),
+    Field("gaussians_pruned_total", "", "sum of `n_pruned`"),
+    Field("prune_candidates_total", "", "sum of `n_candidates`"),
+    Field("state_peak_mib", "MiB", "largest `state_mib`"),
+    Field("cpu_rss_peak_mib", "MiB", "largest window value of the column of that name"),
+    Field("torch_live_peak_mib", "MiB", "largest window value of the column of that name"),
+    Field("cuda_alloc_peak_mib", "MiB", "largest window value of the column of that name"),
+    Field("cuda_reserved_peak_mib", "MiB", "largest window value of the column of that name"),
+    Field(PEAK_FIELD, "MiB", "the headline peak: the column named by `peak_mem_source`"),
+    Field(PEAK_SOURCE_FIELD, "", f"`{'`, `'.join(PEAK_SOURCES)}`: the first available on the device", "text"),
+    Field("memory_method", "", "how the peaks were measured (`cpu_rss`, `torch_live`)", "object"),
+)
+METRIC_NAMES: tuple[str, ...] = tuple(f.name for f in METRIC_FIELDS)
+NUMERIC_METRICS: frozenset[str] = frozenset(f.name for f in METRIC_FIELDS if f.kind == "number")
+
+
+def memory_summary(windows: Sequence[dict[str, Any]], device_type: str) -> dict[str, Any]:
+    """Per-run peaks over the keyframe windows, plus the headline ``peak_mem_mib`` and its source."""
+
+    def peak(key: str) -> float | None:
+        vals = [w[key] for w in windows if w.get(key) is not None]
+        return max(vals) if vals else None
+
+    summary: dict[str, Any] = {
+        "gaussians_peak": peak("n_gaussians") or 0,
+        "state_peak_mib": peak("state_mib"),
+        **{key: peak(key) for key in MEMORY_PEAK_COLUMNS},
+    }
+    sources = list(PEAK_SOURCES) if device_type == "cuda" else [s for s in PEAK_SOURCES if s != "cuda_alloc"]
+    source = next((s for s in sources if summary[PEAK_SOURCES[s]] is not None), sources[0])
+    summary[PEAK_FIELD], summary[PEAK_SOURCE_FIELD] = summary[PEAK_SOURCES[source]], source
+    return summary
+
+
+def peak_column(source: Any) -> str | None:
+    """The keyframes.csv column behind the headline figure of a run whose source is ``source``."""
+    return PEAK_SOURCES.get(source) if isinstance(source, str) else None
+
+
+def _table(fields: Sequence[Field]) -> list[str]:
+    rows = ["| field | unit | holds |", "|---|---|---|"]
+    rows += [f"| `{f.name}` | {f.unit or '-'} | {f.holds} |" for f in fields]
+    return rows
+
+
+def markdown() -> str:
+    """The README's run-directory field tables, generated from this module."""
+    lines = [
+        f"`{METRICS_FILE}` `run` block:",
+        "",
+        *_table(RUN_FIELDS),
+        "",
+        f"`{METRICS_FILE}` `metrics` block (fields a run could not compute are null or absent):",
+        "",
+        *_table(METRIC_FIELDS),
+        "",
+        f"`{KEYFRAMES_FILE}`, one row per keyframe window (frames since the previous keyframe, its mapping and"
+        " pruning); memory columns are null where the probe cannot measure on this device:",
+        "",
+        *_table(KEYFRAME_FIELDS),
+    ]
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    print(markdown())

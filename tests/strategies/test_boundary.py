@@ -1,0 +1,80 @@
+"""What a strategy returns is checked where the core receives it, and a bad output names the strategy."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import pytest
+import torch
+
+from bench.errors import StrategyError
+from bench.slam.gaussians import GaussianMap
+from bench.strategy import CheckedStrategy, MappingContext, PruneContext, Strategy
+
+
+def _map(n: int) -> GaussianMap:
+    g = GaussianMap(torch.device("cpu"))
+    g.add({"means": torch.zeros(n, 3), "log_scales": torch.zeros(n, 3),
+           "quats": torch.tensor([1.0, 0, 0, 0]).repeat(n, 1), "opacity_logits": torch.zeros(n),
+           "colors": torch.zeros(n, 3)}, keyframe=0)  # fmt: skip
+    return g
+
+
+def _prune_ctx(g: GaussianMap) -> PruneContext:
+    n = len(g)
+    no = torch.zeros(n, dtype=torch.bool)
+    return PruneContext(1, g, g.state, None, torch.zeros(n), no, ~no, 0.4, (32, 32))  # type: ignore[arg-type]
+
+
+@dataclass
+class Returns(Strategy):
+    """A strategy whose hooks return whatever the test puts in ``out``."""
+
+    out: object = None
+
+    def after_mapping(self, ctx):
+        return self.out
+
+    def render_mask(self, ctx):
+        return self.out
+
+    def mapping_loss(self, ctx):
+        return self.out
+
+
+@pytest.mark.parametrize(("out", "found"), [
+    (torch.ones(5, dtype=torch.float32), "torch.float32 [5]"),  # a score, not a mask
+    (torch.ones(4, dtype=torch.bool), "torch.bool [4]"),  # one Gaussian short
+    ([True] * 5, "list"),
+])
+def test_a_malformed_keep_mask_is_a_strategy_error_naming_the_strategy(out, found):
+    g = _map(5)
+    with pytest.raises(StrategyError) as err:
+        CheckedStrategy(Returns(out), "mine").after_mapping(_prune_ctx(g))
+    assert str(err.value).startswith("strategy 'mine' after_mapping: expected a bool tensor [5]")
+    assert found in str(err.value)
+
+
+def test_a_well_formed_output_passes_unchanged():
+    g = _map(5)
+    keep = torch.tensor([True, False, True, True, False])
+    assert CheckedStrategy(Returns(keep), "mine").after_mapping(_prune_ctx(g)) is keep
+    assert CheckedStrategy(Returns(None), "mine").after_mapping(_prune_ctx(g)) is None
+
+
+def test_render_mask_and_loss_shapes_are_checked():
+    g = _map(3)
+    ctx = MappingContext(0, 0, g, g.state, True)
+    with pytest.raises(StrategyError, match=r"strategy 'mine' render_mask: expected a floating tensor \[3\]"):
+        CheckedStrategy(Returns(torch.ones(3, dtype=torch.bool)), "mine").render_mask(ctx)
+    with pytest.raises(StrategyError, match="strategy 'mine' mapping_loss: expected a scalar tensor or None"):
+        CheckedStrategy(Returns(torch.ones(3)), "mine").mapping_loss(ctx)
+
+
+def test_a_strategy_error_raised_inside_a_hook_gets_the_name():
+    class Broken(Strategy):
+        def after_mapping(self, ctx):
+            raise StrategyError("expected rasterize(..., stats=True) outputs, found hit_count None")
+
+    with pytest.raises(StrategyError, match="^strategy 'broken' after_mapping: expected rasterize"):
+        CheckedStrategy(Broken(), "broken").after_mapping(_prune_ctx(_map(2)))

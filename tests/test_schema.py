@@ -1,0 +1,58 @@
+"""The run-directory schema: one source for the writer, the report reader and the README."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from bench import schema
+from bench.report.plots import peak_column
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+BEGIN, END = "<!-- run-dir-schema:begin (python -m bench.schema) -->", "<!-- run-dir-schema:end -->"
+
+
+def test_readme_tables_are_the_schema():
+    text = README.read_text()
+    assert BEGIN in text and END in text, "README lacks the generated run-directory block"
+    block = text.split(BEGIN, 1)[1].split(END, 1)[0].strip()
+    assert block == schema.markdown().strip(), "README run-directory tables are stale: run python -m bench.schema"
+
+
+def test_report_columns_are_schema_fields():
+    from bench.report.collect import METRIC_KEYS
+
+    assert set(METRIC_KEYS) <= set(schema.METRIC_NAMES)
+
+
+def test_field_names_carry_units():
+    for field in schema.METRIC_FIELDS + schema.KEYFRAME_FIELDS:
+        suffix = {"m": "_m", "MiB": "_mib", "s": "_s", "dB": "_db", "deg": "_deg", "B": "_bytes"}.get(field.unit)
+        if suffix:
+            assert field.name.endswith(suffix), field
+
+
+def test_headline_memory_prefers_the_device_figure():
+    windows = [
+        {"n_gaussians": 10, "state_mib": 1.0, "cpu_rss_peak_mib": 300.0, "torch_live_peak_mib": 50.0,
+         "cuda_alloc_peak_mib": None, "cuda_reserved_peak_mib": None},
+        {"n_gaussians": 20, "state_mib": 2.0, "cpu_rss_peak_mib": 310.0, "torch_live_peak_mib": 60.0,
+         "cuda_alloc_peak_mib": None, "cuda_reserved_peak_mib": None},
+    ]
+    cpu = schema.memory_summary(windows, "cpu")
+    assert (cpu["peak_mem_mib"], cpu["peak_mem_source"]) == (60.0, "torch_live")
+    assert cpu["gaussians_peak"] == 20 and cpu["cpu_rss_peak_mib"] == 310.0
+    no_live = [{**w, "torch_live_peak_mib": None} for w in windows]
+    assert schema.memory_summary(no_live, "cpu")["peak_mem_source"] == "cpu_rss"
+    on_cuda = [{**w, "cuda_alloc_peak_mib": 7.0, "torch_live_peak_mib": None} for w in windows]
+    assert schema.memory_summary(on_cuda, "cuda")["peak_mem_source"] == "cuda_alloc"
+
+
+def test_report_reads_the_column_the_writer_named():
+    kf = pd.DataFrame({"frame": [0, 3], "state_mib": [1.0, 2.0], "cpu_rss_peak_mib": [300.0, 310.0],
+                       "torch_live_peak_mib": [50.0, 60.0]})
+    for source, column in schema.PEAK_SOURCES.items():
+        run = pd.Series({"peak_mem_source": source})
+        assert peak_column(run, kf) == (column if column in kf.columns else None)
+    assert peak_column(pd.Series({"peak_mem_source": None}), kf) is None
