@@ -318,7 +318,9 @@ def _hydra_main(cfg: DictConfig) -> None:
     reason = f" ({result.error})" if result.error else ""
     print(f"[{word}] {result.out_dir}" + reason)
     if multirun:
-        _record(hc, word, result.out_dir, result.metrics, wall_s)
+        # a resumed run shows its stored status, marked, in the sweep table
+        status = f"{result.status} (resumed)" if result.skipped else result.status
+        _record(hc, status, result.out_dir, result.metrics, wall_s)
     else:
         print(run_table(result.status, result.out_dir, result.metrics, wall_s))
 

@@ -40,6 +40,7 @@ def test_interrupted_sweep_resumes_without_redoing_runs(tmp_path):
     second = sweep(tmp_path, "+strategy=none,pocket")
     assert second.returncode == 0, second.stderr[-2000:]
     assert second.stdout.count("skipped (completed)") == 1
+    assert second.stdout.count("| ok (resumed) |") == 1  # the sweep table marks the run it did not redo
     after = {p: p.stat().st_mtime_ns for p in (tmp_path / "sweep").glob("*/metrics.json")}
     none_file = next(p for p in after if "none" in p.parent.name)
     assert after[none_file] == stamp[none_file]  # the finished run was not redone
