@@ -115,8 +115,8 @@ class SyntheticConfig(DatasetConfig):
 
     name: str = "synthetic"
     seed: int = 0  # the scene layout (which street); the run's seed does not change it
-    width: int = 160  # px
-    height: int = 96  # px
+    width: int = 320  # px; 4x the pixels of 160x96, which the fused rasterizer affords
+    height: int = 192  # px
     n_frames: int = 40  # a drive of n_frames x speed_m_per_frame
     speed_m_per_frame: float = 0.5
     sway_m: float = 1.5
