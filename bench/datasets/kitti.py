@@ -37,7 +37,7 @@ class KittiConfig(StereoConfig):
     root: str = "data/kitti"  # holds sequences/XX/ and poses/XX.txt
     default_seq: str = "06"  # numeric names are zero-padded ('6' -> '06')
     color: str = "auto"  # auto | color | gray: image_2/3 (colour) or image_0/1 (gray); falls back with a log line
-    downscale: int = 2  # 1241x376 -> 620x188 (1226x370 -> 613x185); 4x the pixels of 1/4, which the fused rasterizer affords
+    downscale: int = 2  # 1241x376 -> 620x188 (1226x370 -> 613x185); the fused rasterizer affords 4x the pixels of 1/4
     max_depth_m: float | None = 50.0  # stereo depth beyond this is set to 0 (1 px of disparity ~ 8 m at 50 m)
 
     def __post_init__(self) -> None:

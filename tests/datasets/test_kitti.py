@@ -48,10 +48,10 @@ def test_ground_truth(kitti_cfg, shared):
 
 
 def test_stereo_depth_plausible(kitti_cfg):
-    """Measured at the default downscale 4 (306x92): valid 0.674 / 0.694 / 0.674 and median depth
+    """Measured at downscale 4 (306x92): valid 0.674 / 0.694 / 0.674 and median depth
     12.66 / 12.82 / 10.48 m for frames 0 / 25 / 50 (5th-95th percentile ~6-38 m); at full resolution
     valid 0.66-0.68, median 10.4-12.7 m: a suburban street with houses and parked cars."""
-    seq = kitti.open_sequence(kitti_cfg)
+    seq = kitti.open_sequence({**kitti_cfg, "downscale": 4})
     assert (seq.width, seq.height) == (306, 92)
     near_m = FX * seq.baseline_m / seq.params.num_disparities  # ~2.97 m
     for i in (0, 25, 50):
