@@ -44,7 +44,8 @@ def collect(device: torch.device) -> dict[str, Any]:
     }
 
 
-CODE_PATHS = ("bench", "strategies", "conf", "pyproject.toml")  # what a result depends on
+# what a result depends on (the configs live in bench/conf)
+CODE_PATHS = ("bench", "strategies", "hydra_plugins", "pyproject.toml")
 
 
 def code_version() -> dict[str, Any]:
