@@ -96,7 +96,15 @@ def _box(mx, my, a, b, c, o, x0, x1, y0, y1):  # pragma: no cover - compiled
     return bx0, bx1, by0, by1
 
 
-@njit(parallel=True, cache=True)
+@njit(cache=True, inline="always")
+def _power_min(o):  # pragma: no cover - compiled
+    """Below this exponent o exp(power) < 1/255 (with a margin, so the exact test decides at the edge)."""
+    if o <= _F(0.0):
+        return _F(np.inf)
+    return -LN255 - np.log(o) - _F(1e-3)
+
+
+@njit(parallel=True, cache=True, fastmath=True)
 def _forward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x, stats,
              acc, t_final, last, pair_cov, pair_hits, pair_maxw):  # pragma: no cover - compiled
     """Front-to-back compositing per tile; fills acc [H*W, 4], t_final [H*W], last [H*W] (pair index).
@@ -130,6 +138,7 @@ def _forward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x, sta
             maxw = _F(0.0)
             if n_active > 0:
                 bx0, bx1, by0, by1 = _box(mx, my, a, b, c, o, x0, x1, y0, y1)
+                p_min = _power_min(o)
                 for y in range(by0, by1):
                     dy = _F(y) - my
                     for x in range(bx0, bx1):
@@ -138,6 +147,8 @@ def _forward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x, sta
                             continue
                         dx = _F(x) - mx
                         power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
+                        if power < p_min:  # the box's corners, outside the 1/255 ellipse: no exp needed
+                            continue
                         raw = o * np.exp(power)
                         if raw < ALPHA_MIN:
                             continue
@@ -179,7 +190,7 @@ def _forward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x, sta
                 pair_cov[k] = cov
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, fastmath=True)
 def _backward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x,
               t_final, last, g_acc, g_t, pair_grad):  # pragma: no cover - compiled
     """Per pixel, back to front from its last contributor (3DGS's backward pass).
@@ -216,6 +227,7 @@ def _backward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x,
             a, b, c = conic[g, 0], conic[g, 1], conic[g, 2]
             o = opac[g]
             bx0, bx1, by0, by1 = _box(mx, my, a, b, c, o, x0, x1, y0, y1)
+            p_min = _power_min(o)
             gmx = gmy = ga = gb = gc = go = _F(0.0)
             gf0 = gf1 = gf2 = gf3 = _F(0.0)
             f0, f1, f2, f3 = feat[g, 0], feat[g, 1], feat[g, 2], feat[g, 3]
@@ -227,6 +239,8 @@ def _backward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x,
                         continue
                     dx = _F(x) - mx
                     power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
+                    if power < p_min:  # the same test as the forward pass
+                        continue
                     gauss = np.exp(power)
                     raw = o * gauss
                     if raw < ALPHA_MIN:
