@@ -13,6 +13,7 @@ message; ``TrackingLost`` becomes status ``lost`` and is still evaluated on the 
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import json
@@ -33,8 +34,11 @@ from bench.datasets import Sequence, canonical_seq, open_sequence
 from bench.determinism import repeatable
 from bench.errors import BenchError, ConfigError, TrackingLost
 from bench.measure import MemoryProbe, PhaseTimer
+from bench.metrics.trajectory import TumAppender
 from bench.progress import Phase
-from bench.record import record_failed, write_json
+from bench.record import is_leftover, owner, record_failed, write_json
+from bench.resume import input_fingerprint, redo_reason, resume_key
+from bench.signals import Interrupted, deferred_signals, raise_on_signals
 from bench.slam.se3 import inverse
 from bench.slam.system import FrameResult, System
 from bench.strategy import CheckedStrategy, Strategy, load_strategy
@@ -42,17 +46,19 @@ from bench.validate import validate
 
 log = logging.getLogger(__name__)
 
+TRAJ_EST = "traj_est.txt"
+
 # keys that change how a run is shown or stored, not what it computes
 _NOT_HASHED = ("progress", "out_dir", "resume")
 
 
 @dataclass
 class RunResult:
-    status: str  # ok | lost | failed
+    status: str  # ok | lost | failed | interrupted
     out_dir: Path
     metrics: dict[str, Any] = field(default_factory=dict)
     error: str | None = None
-    skipped: bool = False  # resume found completed results for the same config hash
+    skipped: bool = False  # resume found completed results of the same config, code and inputs
 
 
 def resolve_device(name: str) -> torch.device:
@@ -113,18 +119,6 @@ def _finite_or_none(x: float | None) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
 
 
-def completed(out_dir: Path, cfg_hash: str) -> dict[str, Any] | None:
-    """The stored metrics if ``out_dir`` holds a finished run (ok or lost) of the same config."""
-    path = out_dir / schema.METRICS_FILE
-    try:
-        stored = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError):
-        return None
-    if stored.get("status") in ("ok", "lost") and stored.get("run", {}).get("config_hash") == cfg_hash:
-        return stored
-    return None
-
-
 def make_out_dir(out: Path) -> None:
     """Create the run dir; a path that cannot be a writable dir is one ``ConfigError`` line."""
     try:
@@ -141,7 +135,13 @@ def make_out_dir(out: Path) -> None:
 
 
 def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None) -> RunResult:
-    """Run one (strategy, dataset, seq, seed) combination and write its run directory."""
+    """Run one (strategy, dataset, seq, seed) combination and write its run directory.
+
+    Order matters: the config is validated and the data opened before anything is written, so a
+    refused run leaves no half-made dir; a stored run is skipped only when config, code version
+    and input files all match (``bench.resume``); once running, SIGINT/SIGTERM end the run as
+    ``interrupted`` with what the frames done allow (then ``Interrupted`` is re-raised).
+    """
     if isinstance(cfg, RunConfig):
         cfg = OmegaConf.structured(cfg)
     out = Path(out_dir or cfg.out_dir or ".").resolve()
@@ -154,43 +154,88 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None) -> RunRe
         record_failed(out, str(exc), _keys_best_effort(cfg))
         return RunResult("failed", out, {}, str(exc))
     make_out_dir(out)
+    stored = _previous(out)
     cfg_hash = _config_hash(cfg)
-    if conf.resume:
-        stored = completed(out, cfg_hash)
-        if stored is not None:
-            log.info("skipping %s: completed results with config hash %s exist", out, cfg_hash)
-            return RunResult(stored["status"], out, stored.get("metrics", {}), stored.get("error"), skipped=True)
-    (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    keys = {**run_keys(conf), "config_hash": cfg_hash}
     record: dict[str, Any] = {
-        "status": "running", "error": None, "run": {**run_keys(conf), "config_hash": cfg_hash}, "determinism": {},
-        "metrics": {}, "provenance": {},
+        "status": "running", "error": None, "run": keys, "determinism": {}, "metrics": {}, "provenance": {},
+        "owner": owner(),
     }  # fmt: skip
-    write_json(metrics_path, record)
     try:
         device = resolve_device(conf.device)
-        with repeatable(conf.seed, conf.threads, conf.determinism, device) as det:  # seeds, threads, kernels
+        seq = open_seq(conf)  # the loaders draw from their own seeded generators, not the global ones
+    except BenchError as exc:  # bad data found before any work
+        (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+        record.update(status="failed", error=str(exc))
+        record.pop("owner")
+        write_json(metrics_path, record)
+        return RunResult("failed", out, {}, str(exc))
+    keys.update(resume_key(cfg_hash, provenance.code_version(), input_fingerprint(seq.source_files)))
+    if conf.resume:
+        reason = redo_reason(stored, keys)
+        if reason is None:
+            log.info("skipping %s: completed results of the same config, code and inputs exist", out)
+            return RunResult(stored["status"], out, stored.get("metrics", {}), stored.get("error"), skipped=True)
+        if stored is not None:
+            log.info("redoing %s: %s", out, reason)
+    (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    (out / TRAJ_EST).unlink(missing_ok=True)
+    write_json(metrics_path, record)
+    stop: Interrupted | None = None
+    try:
+        with raise_on_signals(), repeatable(conf.seed, conf.threads, conf.determinism, device) as det:
             record["determinism"] = det
             record["provenance"] = provenance.collect(device)  # after the thread count is set
-            status, error, metrics = _execute(conf, out, device, record)
+            status, error, metrics, stop = _execute(conf, out, device, record, seq)
+    except Interrupted as exc:  # outside the frame loop (build, refinement, evaluation): keep what is there
+        n_done = record["metrics"].get("num_frames", 0)
+        status, error, metrics, stop = "interrupted", f"{exc} after {n_done} frames", record["metrics"], exc
     except BenchError as exc:
         status, error, metrics = "failed", str(exc), record["metrics"]
     except Exception as exc:  # unexpected: record it so the sweep goes on, then re-raise for the traceback
         record.update(status="failed", error=f"{type(exc).__name__}: {exc}".splitlines()[0])
+        record.pop("owner")
         write_json(metrics_path, record)
         raise
-    record.update(status=status, error=error, metrics=metrics)
-    write_json(metrics_path, record)
+    with deferred_signals():  # a second Ctrl-C must not cut the record in half
+        record.update(status=status, error=error, metrics=metrics)
+        record.pop("owner")
+        write_json(metrics_path, record)
+    if stop is not None:
+        raise Interrupted(stop.signum, f"{error}; partial results in {out}")
     return RunResult(status, out, metrics, error)
 
 
-def _execute(cfg: RunConfig, out: Path, device: torch.device, record: dict[str, Any]):
+def _previous(out: Path) -> dict[str, Any] | None:
+    """The metrics.json a previous run left here; a ``running`` one whose process died is marked interrupted."""
+    path = out / schema.METRICS_FILE
+    try:
+        stored = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    if not isinstance(stored, dict):
+        return None
+    if is_leftover(stored):
+        who = stored.get("owner") or {}
+        frames = (stored.get("metrics") or {}).get("num_frames", 0)
+        stored.update(status="interrupted",
+                      error=f"killed: process {who.get('pid')} stopped while running, after {frames} frames")
+        stored.pop("owner")
+        write_json(path, stored)
+        log.warning("%s: the previous run was killed while running (pid %s); recorded as interrupted",
+                    out, who.get("pid"))
+    return stored
+
+
+def _execute(cfg: RunConfig, out: Path, device: torch.device, record: dict[str, Any], seq: Sequence):
     t_start = time.perf_counter()
-    parts = build(cfg, device)
+    parts = build(cfg, device, seq)
     record["metrics"] = metrics = {"num_frames": 0, "num_keyframes": 0}
-    drive = drive_frames(cfg, parts, out / schema.KEYFRAMES_FILE, metrics)
-    metrics.update(finish(cfg, parts, drive, out, device))
-    metrics["wall_s"] = round(time.perf_counter() - t_start, 3)  # the whole run: loading to figures
-    return drive.status, drive.error, metrics
+    drive = drive_frames(cfg, parts, out, record)
+    with deferred_signals() if drive.stop is not None else contextlib.nullcontext():
+        metrics.update(finish(cfg, parts, drive, out, device))
+        metrics["wall_s"] = round(time.perf_counter() - t_start, 3)  # the whole run: loading to figures
+    return drive.status, drive.error, metrics, drive.stop
 
 
 # ---------------------------------------------------------------------------------------------- build
@@ -208,15 +253,19 @@ class Parts:
     probe: MemoryProbe
 
 
-def build(cfg: RunConfig, device: torch.device) -> Parts:
-    """Open the sequence, make the strategy and the SLAM system (seeded by ``repeatable``)."""
-    name = cfg.strategy.name if cfg.strategy else "none"
-    strategy = CheckedStrategy(load_strategy(name, cfg.strategy.params if cfg.strategy else None), name)
+def open_seq(cfg: RunConfig) -> Sequence:
+    """The run's sequence; opened before the run starts, so its files enter the resume key."""
     dataset = cfg.dataset
     if cfg.seq is not None:
         is_plain = isinstance(dataset, dict)
         dataset = {**dataset, "seq": cfg.seq} if is_plain else dataclasses.replace(dataset, seq=cfg.seq)
-    seq = open_sequence(dataset_name(dataset), dataset)
+    return open_sequence(dataset_name(dataset), dataset)
+
+
+def build(cfg: RunConfig, device: torch.device, seq: Sequence) -> Parts:
+    """Make the strategy and the SLAM system (seeded by ``repeatable``) for the opened sequence."""
+    name = cfg.strategy.name if cfg.strategy else "none"
+    strategy = CheckedStrategy(load_strategy(name, cfg.strategy.params if cfg.strategy else None), name)
     n_frames = min(len(seq), cfg.max_frames) if cfg.max_frames else len(seq)
     if n_frames < 2:
         raise ConfigError(f"a run needs at least 2 frames: expected >= 2, found {n_frames}")
@@ -233,8 +282,9 @@ def build(cfg: RunConfig, device: torch.device) -> Parts:
 class Drive:
     """What the frame loop leaves behind."""
 
-    status: str = "ok"
+    status: str = "ok"  # ok | lost | interrupted | failed (bad data mid-run)
     error: str | None = None
+    stop: Interrupted | None = None  # the signal that ended the loop, re-raised once the record is written
     timestamps_s: list[float] = field(default_factory=list)
     gt_c2w: list[torch.Tensor | None] = field(default_factory=list)
     windows: list[dict[str, Any]] = field(default_factory=list)  # the keyframes.csv rows
@@ -242,15 +292,17 @@ class Drive:
     warmup_s: float = 0.0  # the warm-up frames' time, left out of loop_s and fps
 
 
-def drive_frames(cfg: RunConfig, parts: Parts, csv_path: Path, metrics: dict[str, Any]) -> Drive:
-    """Feed every frame to the system; one flushed keyframes.csv row per keyframe window."""
+def drive_frames(cfg: RunConfig, parts: Parts, out: Path, record: dict[str, Any]) -> Drive:
+    """Feed every frame to the system; one flushed keyframes.csv row per keyframe window and one
+    flushed traj_est.txt line per frame, so a stopped run keeps what it tracked."""
     system, device = parts.system, parts.system.device
+    metrics = record["metrics"]
     drive = Drive()
     warmup = cfg.warmup_frames
     bar = Phase("frames", parts.n_frames, "frame", cfg.progress)
     between = dict.fromkeys(("n_pruned", "n_candidates", "prune_s"), 0)  # prune.every=frame: since the last keyframe
     parts.probe.start_window()
-    with open(csv_path, "w", newline="") as fh:
+    with open(out / schema.KEYFRAMES_FILE, "w", newline="") as fh, TumAppender(out / TRAJ_EST) as traj:
         writer = csv.DictWriter(fh, fieldnames=schema.KEYFRAME_COLUMNS)
         writer.writeheader()
         fh.flush()
@@ -265,6 +317,7 @@ def drive_frames(cfg: RunConfig, parts: Parts, csv_path: Path, metrics: dict[str
                     drive.loop_s += time.perf_counter() - t0
                 else:
                     drive.warmup_s += time.perf_counter() - t0
+                traj.append(frame.timestamp_s, inverse(res.w2c.detach().double().cpu()).numpy())
                 drive.timestamps_s.append(frame.timestamp_s)
                 drive.gt_c2w.append(frame.gt_c2w)
                 metrics["num_frames"] = i + 1
@@ -277,12 +330,17 @@ def drive_frames(cfg: RunConfig, parts: Parts, csv_path: Path, metrics: dict[str
                     fh.flush()
                     drive.windows.append(row)
                     metrics["num_keyframes"] = len(drive.windows)
+                    write_json(out / schema.METRICS_FILE, record)  # still running; counts so far, for a later reader
                     parts.probe.start_window()
                 bar.update(1, gaussians=len(system.map), fps=f"{(i + 1 - warmup) / max(drive.loop_s, 1e-9):.2f}")
         except TrackingLost as exc:
             drive.status, drive.error = "lost", str(exc)
             bar.close(note=f"lost: {exc}")
             log.warning("%s", exc)
+        except Interrupted as exc:  # stopped: the frames done are still a result, not a method failure
+            drive.status, drive.error, drive.stop = "interrupted", f"{exc} after {metrics['num_frames']} frames", exc
+        except BenchError as exc:  # bad data mid-run (a corrupt frame): keep the partial record, failed
+            drive.status, drive.error = "failed", f"{exc} (after {metrics['num_frames']} frames)"
         finally:
             bar.close()
             parts.probe.close()
@@ -325,11 +383,16 @@ def _round(v: float | None) -> float | None:
 
 
 def finish(cfg: RunConfig, parts: Parts, drive: Drive, out: Path, device: torch.device) -> dict[str, Any]:
-    """After the loop (none of it SLAM time): refine, summarise memory and time, evaluate, plot."""
+    """After the loop (none of it SLAM time): refine, summarise memory and time, evaluate, plot.
+
+    A stopped or failed run (``partial``) skips refinement, rendering and the density figure: the
+    trajectory metrics over the frames done are what it can still say.
+    """
     system, timer = parts.system, parts.timer
+    partial = drive.status in ("interrupted", "failed")
     n_done = len(drive.timestamps_s)
     metrics: dict[str, Any] = {"slam_wall_s": round(drive.loop_s, 3), "warmup_s": round(drive.warmup_s, 3)}
-    if cfg.slam.refine_iters > 0:
+    if cfg.slam.refine_iters > 0 and not partial:
         with timer.phase("refine"), Phase("refine", cfg.slam.refine_iters, "iteration", cfg.progress) as bar:
             system.refine(cfg.slam.refine_iters, on_step=bar.update)
         metrics["refine_s"] = round(timer.totals()["refine"], 3)
@@ -348,12 +411,13 @@ def finish(cfg: RunConfig, parts: Parts, drive: Drive, out: Path, device: torch.
     metrics["keep_ratio"] = run_keys(cfg)["keep_ratio"]  # as in run.keep_ratio: null when nothing is pruned
     est_c2w = [inverse(p.detach().double().cpu()) for p in system.poses[:n_done]]
     t_eval = time.perf_counter()
-    metrics.update(_evaluate(cfg, out, parts, est_c2w, drive, device))
+    metrics.update(_evaluate(cfg, out, parts, est_c2w, drive, device, images=not partial))
     metrics["eval_s"] = round(time.perf_counter() - t_eval, 3)  # ATE, rendering, PSNR/SSIM/LPIPS
     from bench.plots import memory_timeline
 
     memory_timeline(out / "memory.png", drive.windows, title=f"{run_keys(cfg)['strategy']} on {parts.seq.name}")
-    write_density(out / "density.npz", system)
+    if not partial:
+        write_density(out / "density.npz", system)
     return metrics
 
 
@@ -374,9 +438,19 @@ def write_density(path: Path, system: System) -> None:
 
 
 def _evaluate(
-    cfg: RunConfig, out: Path, parts: Parts, est_c2w: list[torch.Tensor], drive: Drive, device: torch.device
+    cfg: RunConfig,
+    out: Path,
+    parts: Parts,
+    est_c2w: list[torch.Tensor],
+    drive: Drive,
+    device: torch.device,
+    images: bool = True,
 ) -> dict[str, Any]:
-    """ATE (evo), PSNR/SSIM (torchmetrics), LPIPS when weights exist; none of it is SLAM time."""
+    """ATE (evo), PSNR/SSIM (torchmetrics), LPIPS when weights exist; none of it is SLAM time.
+
+    ``images=False`` (a stopped or failed run) skips rendering: the trajectory metrics only.
+    traj_est.txt is already on disk, appended frame by frame.
+    """
     from bench.metrics.image import image_metrics
     from bench.metrics.lpips import LPIPS
     from bench.metrics.trajectory import Trajectory, ate, rpe, write_tum
@@ -387,7 +461,6 @@ def _evaluate(
         return res
     ts = np.asarray(drive.timestamps_s)
     est = Trajectory.from_c2w(ts, torch.stack(est_c2w).numpy())
-    write_tum(out / "traj_est.txt", est)
     if all(g is not None for g in drive.gt_c2w) and len(est_c2w) >= 3:
         gt_world = torch.stack([g.double() for g in drive.gt_c2w])
         gt_world = inverse(gt_world[0]).expand_as(gt_world) @ gt_world  # first camera = origin, like the estimate
@@ -398,6 +471,8 @@ def _evaluate(
         res["path_length_m"] = round(float(np.linalg.norm(np.diff(gt.positions_m, axis=0), axis=1).sum()), 4)
         if ev.rpe:
             res.update(rpe(est, gt, align=ev.ate_align, max_diff_s=ev.max_diff_s))
+    if not images:
+        return res
     idx = list(range(0, len(est_c2w), max(1, ev.every)))
     preds, targets = [], []
     with Phase("evaluate", len(idx), "frame", cfg.progress) as bar:

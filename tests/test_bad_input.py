@@ -184,21 +184,6 @@ def test_sweep_records_a_job_that_cannot_be_composed(tmp_path: Path) -> None:
 
 
 # --------------------------------------------------------------------------- bad data files
-def _kitti_copy(shared: Path, tmp_path: Path) -> Path:
-    src = shared / "data" / "kitti"
-    seq = tmp_path / "kitti" / "sequences" / "06"
-    seq.mkdir(parents=True)
-    for cam in ("image_0", "image_1"):
-        (seq / cam).mkdir()
-        for png in sorted((src / "sequences" / "06" / cam).glob("*.png")):
-            (seq / cam / png.name).symlink_to(png)
-    for name in ("calib.txt", "times.txt"):
-        shutil.copy(src / "sequences" / "06" / name, seq)
-    (tmp_path / "kitti" / "poses").mkdir()
-    shutil.copy(src / "poses" / "06.txt", tmp_path / "kitti" / "poses")
-    return tmp_path / "kitti"
-
-
 def _tum_copy(tmp_path: Path) -> Path:
     import cv2
     import numpy as np
@@ -315,8 +300,8 @@ def test_bad_data_file_fails_before_any_work(name: str, tmp_path: Path, request:
     if dataset == "tum":
         root, seq = _tum_copy(tmp_path), "fr1_test"
     else:
-        shared = request.getfixturevalue("shared")
-        root = _kitti_copy(shared, tmp_path) if dataset == "kitti" else request.getfixturevalue("euroc_copy")
+        fixture = "make_kitti_copy" if dataset == "kitti" else "euroc_copy"
+        root = request.getfixturevalue(fixture)() if dataset == "kitti" else request.getfixturevalue(fixture)
         seq = "06" if dataset == "kitti" else "V1_01_micro"
     breakage(root)
     run_dir = tmp_path / "run"
@@ -343,3 +328,51 @@ def test_one_sequence_one_name(dataset: str, given: str, canonical: str) -> None
 
     assert canonical_seq(dataset, given) == canonical
     assert run_keys(cli.compose([f"dataset={dataset}", f"seq={given}"]))["seq"] == canonical
+
+
+def test_report_counts_one_sequence_once(tmp_path: Path) -> None:
+    """Records written before canonical names (seq '6' and '06') land in one report column."""
+    from bench.report.collect import collect
+
+    for name, seq in (("a", "6"), ("b", "06")):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "metrics.json").write_text(json.dumps({
+            "status": "ok", "error": None, "metrics": {"ate_rmse_m": 0.1},
+            "run": {"strategy": "none", "dataset": "kitti", "seq": seq, "seed": 0, "keep_ratio": None}}))
+    assert sorted(set(collect([tmp_path]).runs["seq"])) == ["06"]
+
+
+# --------------------------------------------------------------------------- resume key
+def test_resume_redoes_on_any_change_and_says_why() -> None:
+    from bench.resume import redo_reason, resume_key
+
+    code = {"git_commit": "a" * 40, "git_dirty": False, "diff_sha": None, "package": "0.1.0"}
+    key = resume_key("cfg1", code, {"calib.txt": "x", "images (2 files)": "y"})
+    done = {"status": "ok", "run": dict(key)}
+    assert redo_reason(done, key) is None
+    assert redo_reason({**done, "status": "lost"}, key) is None
+    assert redo_reason(None, key) == "no previous results"
+    assert redo_reason({**done, "status": "interrupted"}, key) == "the previous run ended interrupted"
+    assert redo_reason({**done, "status": "failed"}, key) == "the previous run ended failed"
+    assert redo_reason(done, {**key, "config_hash": "cfg2"}) == "config changed (hash cfg1 -> cfg2)"
+    dirty = {**code, "git_dirty": True, "diff_sha": "d" * 12}
+    expected = f"code version changed ({'a' * 12} -> {'a' * 12}+dirty dddddddd)"
+    assert redo_reason(done, {**key, "code_version": dirty}) == expected
+    changed = {**key, "inputs": {"calib.txt": "z", "images (2 files)": "y"}}
+    assert redo_reason(done, changed) == "input files changed: calib.txt"
+    old = {**done, "run": {k: v for k, v in key.items() if k != "inputs"}}
+    assert redo_reason(old, key) == "input files not fingerprinted by the previous run"
+
+
+def test_input_fingerprint_follows_content_and_images(tmp_path: Path) -> None:
+    from bench.resume import input_fingerprint
+
+    calib, img = tmp_path / "calib.txt", tmp_path / "000000.png"
+    calib.write_text("P0: 1 2 3")
+    img.write_bytes(b"png")
+    first = input_fingerprint([calib, img])
+    assert set(first) == {str(calib), "images (1 files)"}
+    calib.write_text("P0: 1 2 4")  # same size, new content
+    assert input_fingerprint([calib, img])[str(calib)] != first[str(calib)]
+    img.write_bytes(b"png2")
+    assert input_fingerprint([calib, img])["images (1 files)"] != first["images (1 files)"]

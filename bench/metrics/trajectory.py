@@ -13,6 +13,7 @@ quaternion is w, x, y, z like evo.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -124,15 +125,55 @@ def read_tum(path: str | Path, allow_duplicates: bool = False) -> Trajectory:
     return Trajectory(data[:, 0], data[:, 1:4], quat_wxyz)
 
 
+TUM_HEADER = "# timestamp tx ty tz qx qy qz qw\n"
+
+
+def _tum_line(t: float, p: np.ndarray, q_wxyz: np.ndarray) -> str:
+    w, x, y, z = q_wxyz
+    return f"{t:.9f} {p[0]:.17g} {p[1]:.17g} {p[2]:.17g} {x:.17g} {y:.17g} {z:.17g} {w:.17g}\n"
+
+
 def write_tum(path: str | Path, traj: Trajectory) -> None:
     """Write ``timestamp tx ty tz qx qy qz qw`` lines; full precision so a round trip is exact."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    q = traj.quat_wxyz
     with path.open("w") as f:
-        f.write("# timestamp tx ty tz qx qy qz qw\n")
-        for t, p, (w, x, y, z) in zip(traj.timestamps_s, traj.positions_m, q, strict=True):
-            f.write(f"{t:.9f} {p[0]:.17g} {p[1]:.17g} {p[2]:.17g} {x:.17g} {y:.17g} {z:.17g} {w:.17g}\n")
+        f.write(TUM_HEADER)
+        for t, p, q in zip(traj.timestamps_s, traj.positions_m, traj.quat_wxyz, strict=True):
+            f.write(_tum_line(t, p, q))
+
+
+class TumAppender:
+    """A TUM file written one pose at a time, each line flushed to disk as it is tracked.
+
+    Why: a run that is killed, interrupted or meets a corrupt frame keeps the trajectory of every
+    frame it tracked, in the same format ``write_tum`` produces.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._fh = self.path.open("w")
+        self._fh.write(TUM_HEADER)
+        self._sync()
+
+    def append(self, timestamp_s: float, c2w: np.ndarray) -> None:
+        """One pose: ``c2w`` [4, 4] camera-to-world."""
+        c2w = np.asarray(c2w, dtype=np.float64)
+        self._fh.write(_tum_line(float(timestamp_s), c2w[:3, 3], quaternion_from_matrix(c2w)))
+        self._sync()
+
+    def _sync(self) -> None:
+        self._fh.flush()
+        os.fsync(self._fh.fileno())
+
+    def close(self) -> None:
+        self._fh.close()
+
+    def __enter__(self) -> TumAppender:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 def _associate_align(
@@ -230,4 +271,4 @@ def rpe(
     return out
 
 
-__all__ = ["MAX_DIFF_S", "Trajectory", "aligned_positions", "ate", "read_tum", "rpe", "write_tum"]
+__all__ = ["MAX_DIFF_S", "Trajectory", "TumAppender", "aligned_positions", "ate", "read_tum", "rpe", "write_tum"]

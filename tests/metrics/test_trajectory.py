@@ -174,3 +174,34 @@ def test_every_estimated_position_is_aligned_onto_ground_truth(align):
     est = Trajectory(t[::2] + 0.005, est_xyz, quat[::2])  # stamps within the association window
     np.testing.assert_allclose(aligned_positions(est, gt, align), gt_xyz[::2], atol=1e-9)
     np.testing.assert_allclose(aligned_positions(est, gt, "none"), est_xyz)
+
+
+@pytest.mark.parametrize(("rows", "line", "says"), [
+    (["1.0", "2.0", "2.0"], 4, "found 2.000000000 again (duplicate of line 3)"),
+    (["1.0", "3.0", "2.0"], 4, "found 2.000000000 after 3.000000000 (line 3)"),
+])
+def test_read_tum_rejects_duplicate_and_unsorted_stamps(tmp_path, rows, line, says) -> None:
+    path = tmp_path / "t.txt"
+    path.write_text("# t x y z qx qy qz qw\n" + "".join(f"{t} 0 0 0 0 0 0 1\n" for t in rows))
+    with pytest.raises(MetricError) as exc:
+        read_tum(path)
+    assert str(exc.value) == f"{path}:{line}: expected strictly increasing timestamps, {says}"
+    if "again" in says:
+        assert len(read_tum(path, allow_duplicates=True)) == 3
+    else:
+        with pytest.raises(MetricError):
+            read_tum(path, allow_duplicates=True)
+
+
+def test_appended_trajectory_matches_write_tum(tmp_path) -> None:
+    from bench.metrics.trajectory import TumAppender
+
+    traj = _helix()
+    c2w = np.tile(np.eye(4), (len(traj), 1, 1))
+    c2w[:, :3, 3] = traj.positions_m
+    full = Trajectory.from_c2w(traj.timestamps_s, c2w)
+    write_tum(tmp_path / "a.txt", full)
+    with TumAppender(tmp_path / "b.txt") as app:
+        for t, m in zip(traj.timestamps_s, c2w, strict=True):
+            app.append(t, m)
+    assert (tmp_path / "a.txt").read_text() == (tmp_path / "b.txt").read_text()
