@@ -310,6 +310,21 @@ def _rotmat(qw, qx, qy, qz):  # pragma: no cover - compiled
             _F(2.0) * (qx * qz - qw * qy), _F(2.0) * (qy * qz + qw * qx), _F(1.0) - _F(2.0) * (qx * qx + qy * qy))
 
 
+@njit(cache=True, inline="always")
+def _to_camera(means, i, rc, tc):  # pragma: no cover - compiled
+    """Camera-frame position of Gaussian i (the backward recomputes it rather than storing it)."""
+    mw0, mw1, mw2 = means[i, 0], means[i, 1], means[i, 2]
+    return (rc[0, 0] * mw0 + rc[0, 1] * mw1 + rc[0, 2] * mw2 + tc[0],
+            rc[1, 0] * mw0 + rc[1, 1] * mw1 + rc[1, 2] * mw2 + tc[1],
+            rc[2, 0] * mw0 + rc[2, 1] * mw1 + rc[2, 2] * mw2 + tc[2])
+
+
+@njit(cache=True, inline="always")
+def _jacobian_limits(fx, fy, width, height):  # pragma: no cover - compiled
+    """3DGS clamps the Jacobian's lever arm at 1.3x the half field of view (as ``raster.project``)."""
+    return _F(1.3) * (_F(0.5) * _F(width) / fx), _F(1.3) * (_F(0.5) * _F(height) / fy)
+
+
 @njit(parallel=True, cache=True)
 def _project_fwd(means, log_scales, quats, rc, tc, cam, width, height, near_m, tiles_x, tiles_y,
                  m2, cov, z_out, rect, radius_px, tile_id):  # pragma: no cover - compiled
@@ -318,13 +333,9 @@ def _project_fwd(means, log_scales, quats, rc, tc, cam, width, height, near_m, t
     cam: (fx, fy, cx, cy); cov [N, 3] = (a, b, c) of the screen covariance incl. the 0.3 px low-pass.
     """
     fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
-    lim_x = _F(1.3) * (_F(0.5) * _F(width) / fx)
-    lim_y = _F(1.3) * (_F(0.5) * _F(height) / fy)
+    lim_x, lim_y = _jacobian_limits(fx, fy, width, height)
     for i in prange(means.shape[0]):
-        mw0, mw1, mw2 = means[i, 0], means[i, 1], means[i, 2]
-        px = rc[0, 0] * mw0 + rc[0, 1] * mw1 + rc[0, 2] * mw2 + tc[0]
-        py = rc[1, 0] * mw0 + rc[1, 1] * mw1 + rc[1, 2] * mw2 + tc[1]
-        pz = rc[2, 0] * mw0 + rc[2, 1] * mw1 + rc[2, 2] * mw2 + tc[2]
+        px, py, pz = _to_camera(means, i, rc, tc)
         zs = pz if abs(pz) >= _F(1e-6) else _F(1e-6)
         tx = min(max(px / zs, -lim_x), lim_x) * zs
         ty = min(max(py / zs, -lim_y), lim_y) * zs
@@ -381,13 +392,10 @@ def _project_bwd(means, log_scales, quats, rc, tc, cam, width, height, g_m2, g_c
     """The chain rule of ``_project_fwd`` per Gaussian; g_pose [N, 12] holds each Gaussian's share of
     d/d(Rc row-major, tc), reduced afterwards in a fixed order."""
     fx, fy = cam[0], cam[1]
-    lim_x = _F(1.3) * (_F(0.5) * _F(width) / fx)
-    lim_y = _F(1.3) * (_F(0.5) * _F(height) / fy)
+    lim_x, lim_y = _jacobian_limits(fx, fy, width, height)
     for i in prange(means.shape[0]):
         mw0, mw1, mw2 = means[i, 0], means[i, 1], means[i, 2]
-        px = rc[0, 0] * mw0 + rc[0, 1] * mw1 + rc[0, 2] * mw2 + tc[0]
-        py = rc[1, 0] * mw0 + rc[1, 1] * mw1 + rc[1, 2] * mw2 + tc[1]
-        pz = rc[2, 0] * mw0 + rc[2, 1] * mw1 + rc[2, 2] * mw2 + tc[2]
+        px, py, pz = _to_camera(means, i, rc, tc)
         z_ok = abs(pz) >= _F(1e-6)
         zs = pz if z_ok else _F(1e-6)
         ux, uy = px / zs, py / zs
