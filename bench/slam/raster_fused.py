@@ -97,6 +97,14 @@ def _box(mx, my, a, b, c, o, x0, x1, y0, y1):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
+def _tile_pixels(t, tiles_x, width, height):  # pragma: no cover - compiled
+    """Pixel range [x0, x1) x [y0, y1) of tile t, clipped at the image border."""
+    x0 = (t % tiles_x) * TILE
+    y0 = (t // tiles_x) * TILE
+    return x0, min(x0 + TILE, width), y0, min(y0 + TILE, height)
+
+
+@njit(cache=True, inline="always")
 def _power_min(o):  # pragma: no cover - compiled
     """Below this exponent o exp(power) < 1/255 (with a margin, so the exact test decides at the edge)."""
     if o <= _F(0.0):
@@ -114,10 +122,7 @@ def _forward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x, sta
     """
     n_tiles = tile_start.shape[0] - 1
     for t in prange(n_tiles):
-        x0 = (t % tiles_x) * TILE
-        y0 = (t // tiles_x) * TILE
-        x1 = min(x0 + TILE, width)
-        y1 = min(y0 + TILE, height)
+        x0, x1, y0, y1 = _tile_pixels(t, tiles_x, width, height)
         for y in range(y0, y1):
             for x in range(x0, x1):
                 p = y * width + x
@@ -200,10 +205,7 @@ def _backward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x,
     """
     n_tiles = tile_start.shape[0] - 1
     for t in prange(n_tiles):
-        x0 = (t % tiles_x) * TILE
-        y0 = (t // tiles_x) * TILE
-        x1 = min(x0 + TILE, width)
-        y1 = min(y0 + TILE, height)
+        x0, x1, y0, y1 = _tile_pixels(t, tiles_x, width, height)
         s, e = tile_start[t], tile_start[t + 1]
         for k in range(s, e):
             for j in range(10):
