@@ -18,6 +18,7 @@ from bench.report.names import use_method_names
 from bench.report.paper import load_paper_tables
 from bench.report.plots import DPI, make_plots
 from bench.report.render import tables_markdown, to_latex
+from bench.report.settings import settings_markdown
 from bench.report.stats import confidence_interval
 from bench.report.tables import SELECTABLE_METRICS, Table, build_tables
 
@@ -113,7 +114,7 @@ def _make_report(
         path.write_text(to_latex(table), encoding="utf-8")
         files.append(path)
     markdown = out / "tables.md"
-    markdown.write_text(tables_markdown(tables), encoding="utf-8")
+    markdown.write_text(tables_markdown(tables) + "\n" + settings_markdown(runs), encoding="utf-8")
     files.append(markdown)
     files.append(out / "stats.csv")
     seed_statistics(tables, baseline).to_csv(files[-1], index=False)

@@ -21,6 +21,7 @@ from bench.datasets import canonical_seq
 from bench.errors import ReportError
 from bench.record import is_leftover
 from bench.report.names import method_name
+from bench.report.settings import read_settings
 
 REQUIRED_RUN_KEYS: tuple[str, ...] = ("strategy", "dataset")
 DEFAULT_SEQ = "default"  # the harness writes seq null when a dataset has no named default sequence
@@ -148,6 +149,7 @@ def read_run(run_dir: Path) -> dict[str, Any]:
     versions = provenance.get("versions") if isinstance(provenance.get("versions"), dict) else {}
     for name, version in sorted(versions.items()):
         row[f"version_{name}"] = version
+    row.update(read_settings(run_dir, provenance.get("device")))
     row["path"] = str(run_dir)
     return row
 

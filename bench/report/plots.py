@@ -351,31 +351,41 @@ def _per_seed_average(runs: pd.DataFrame, metric: str) -> pd.Series:
 
 
 def plot_ratio(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
-    """Fig. 3a: ATE and PSNR against keep ratio; single-ratio strategies as dashed references."""
+    """Fig. 3a: ATE and PSNR against keep ratio, mean ± seed std, for each preset in which some
+    strategy ran at two or more ratios. Strategies run at one ratio are a point at that ratio
+    (pocket at 0.4 beside the area sweep); a baseline without one is a dashed reference."""
     found = variants(runs)
-    if all(sum(v.strategy == s.strategy for v in found) < 2 for s in found):
+    swept = {v.slam_preset for v in found
+             if sum(u.strategy == v.strategy and u.slam_preset == v.slam_preset for u in found) > 1}  # fmt: skip
+    if not swept:
         return None  # no strategy ran at two keep ratios: nothing to plot against
+    several_presets = len(swept) > 1
     looks = Looks(runs)
     fig = Figure(figsize=(9.0, 3.8), layout="constrained")
     axes = fig.subplots(1, 2)
     any_lost = False
     for ax, (metric, title) in zip(axes, (("ate_rmse_m", "ATE [m]"), ("psnr_db", "PSNR [dB]")), strict=True):
-        by_strategy: dict[str, list[tuple[float | None, float | None, bool]]] = {}
-        for variant in found:
+        lines: dict[tuple[str, str], list[tuple[float | None, float | None, float, bool]]] = {}
+        for variant in (v for v in found if v.slam_preset in swept):
             vr = variant_runs(runs, variant)
             all_lost = bool(len(vr)) and not (vr["status"] == "ok").any() and (vr["status"] == "lost").any()
-            by_strategy.setdefault(variant.strategy, []).append(
-                (variant.keep_ratio, _dataset_average(vr, metric)[0], all_lost)
+            seeds = _per_seed_average(vr, metric)
+            spread = float(seeds.std()) if len(seeds) > 1 else 0.0
+            lines.setdefault((variant.strategy, variant.slam_preset), []).append(
+                (variant.keep_ratio, _dataset_average(vr, metric)[0], spread, all_lost)
             )
-        for strategy, points in by_strategy.items():
+        for (strategy, preset), points in lines.items():
             colour = looks.colour(strategy)
-            label = method_name(strategy)
-            numeric = sorted((k, v) for k, v, _ in points if k is not None and v is not None)
-            if len(points) == 1 and points[0][1] is not None:
-                ax.axhline(points[0][1], color=colour, ls="--", lw=1.0, label=f"{label} (one ratio)")
-            elif numeric:
-                ax.plot([k for k, _ in numeric], [v for _, v in numeric], "-o", color=colour, label=label)
-            lost = [k for k, _, is_lost in points if is_lost and k is not None]
+            label = method_name(strategy) + (f" [{preset}]" if several_presets else "")
+            numeric = sorted((k, v, e) for k, v, e, _ in points if k is not None and v is not None)
+            dash = "--" if preset != sorted(swept)[0] else "-"
+            if numeric:
+                style = f"{dash}o" if len(numeric) > 1 else "s"
+                ax.errorbar([k for k, _, _ in numeric], [v for _, v, _ in numeric], yerr=[e for _, _, e in numeric],
+                            fmt=style, color=colour, capsize=3, ms=5, label=label)  # fmt: skip
+            elif len(points) == 1 and points[0][1] is not None:
+                ax.axhline(points[0][1], color=colour, ls=":", lw=1.2, label=f"{label} (no pruning)")
+            lost = [k for k, _, _, is_lost in points if is_lost and k is not None]
             if lost:
                 any_lost = True
                 ax.plot(lost, [0.02] * len(lost), "x", ms=9, mew=2, color=colour,
@@ -384,8 +394,7 @@ def plot_ratio(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
         ax.set_ylabel(title)
         ax.grid(alpha=0.3)
     handles = axes[0].get_legend_handles_labels()[0]
-    if any(ln.get_linestyle() == "--" for ln in handles if isinstance(ln, Line2D)):
-        handles.append(_style_key("dashed: strategy run at one keep ratio", ls="--"))
+    handles.append(_style_key("bars: ± std over seeds; square: one ratio", ls="none", marker="s"))
     if any_lost:
         handles.append(_style_key("x: all seeds lost", ls="none", marker="x", mew=2))
     axes[0].legend(handles=handles, fontsize="x-small")

@@ -1,0 +1,80 @@
+"""The harness settings behind a report's numbers, read from each run's ``config.yaml``.
+
+Where the harness differs from the paper or its base system, the difference is a config key
+(preset, rasterizer, final refinement, pruning schedule, resolution). A table without them cannot
+say which setting produced it, so every report carries them: as columns of ``runs.csv`` and as the
+"Harness settings" section of ``tables.md``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import yaml
+
+CONFIG_FILE = "config.yaml"  # written by bench.run next to metrics.json, resolved
+# Config keys that decide a comparison, in the order the settings table shows them. The column
+# name in runs.csv is the dotted key itself, so a reader can paste it back as an override.
+SETTING_KEYS: tuple[str, ...] = (
+    "slam.raster_backend", "slam.tracking_iters", "slam.mapping_iters", "slam.kf_every", "slam.refine_iters",
+    "slam.densify_silhouette", "slam.densify_stride", "slam.init_opacity",
+    "prune.target", "prune.n_target", "prune.every", "prune.grad_source",
+    "dataset.downscale", "dataset.width", "dataset.height", "dataset.n_frames", "dataset.first", "dataset.last",
+    "threads", "determinism",
+)  # fmt: skip
+
+
+def _lookup(cfg: dict[str, Any], dotted: str) -> Any:
+    node: Any = cfg
+    for part in dotted.split("."):
+        if not isinstance(node, dict) or part not in node:
+            return None
+        node = node[part]
+    return node
+
+
+def read_settings(run_dir: Path, device: str | None) -> dict[str, Any]:
+    """The ``SETTING_KEYS`` of one run (None where its config lacks a key or has no config).
+
+    ``slam.raster_backend=auto`` is written as the backend it chose on the run's device, because
+    ``auto`` means different kernels on CPU and CUDA.
+    """
+    try:
+        cfg = yaml.safe_load((Path(run_dir) / CONFIG_FILE).read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError):
+        cfg = None
+    if not isinstance(cfg, dict):
+        return dict.fromkeys(SETTING_KEYS)
+    row = {key: _lookup(cfg, key) for key in SETTING_KEYS}
+    if row["slam.raster_backend"] == "auto" and device:
+        chosen = "fused" if str(device).startswith("cpu") else "torch"
+        row["slam.raster_backend"] = f"auto ({chosen})"
+    return row
+
+
+def _values(column: pd.Series) -> str:
+    seen = [v for v in dict.fromkeys(column.tolist()) if v is not None and not (isinstance(v, float) and v != v)]
+    return ", ".join(str(v) for v in seen) if seen else "—"
+
+
+def settings_markdown(runs: pd.DataFrame) -> str:
+    """One row per (dataset, preset): each setting's values over its runs; columns every run lacks
+    are left out."""
+    keys = [k for k in SETTING_KEYS if k in runs and runs[k].notna().any()]
+    if runs.empty or not keys:
+        return ""
+    lines = [
+        "## Harness settings",
+        "",
+        "The config keys that decide a comparison, as the runs of each preset used them "
+        "(several values: the runs differ; `—`: not set).",
+        "",
+        "| dataset | preset | runs | " + " | ".join(f"`{k}`" for k in keys) + " |",
+        "|" + "---|" * (3 + len(keys)),
+    ]
+    for (dataset, preset), group in runs.groupby(["dataset", "slam_preset"], sort=True):
+        cells = [_values(group[k]) for k in keys]
+        lines.append(f"| {dataset} | {preset} | {len(group)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,65 @@
+"""Each report says which harness settings produced it: runs.csv columns and a tables.md section."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from bench.report.build import make_report
+from bench.report.settings import read_settings
+from tests.report.conftest import write_run
+
+CONFIG = """\
+slam:
+  raster_backend: {backend}
+  refine_iters: 0
+  densify_silhouette: {sil}
+prune:
+  target: ratio
+  every: keyframe
+dataset:
+  downscale: 4
+threads: 1
+determinism: strict
+"""
+
+
+def _run(root: Path, name: str, preset: str, backend: str, sil: float, **kw) -> None:
+    run_dir = write_run(root / name, seq="06", slam_preset=preset, **kw)
+    (run_dir / "config.yaml").write_text(CONFIG.format(backend=backend, sil=sil))
+
+
+def test_settings_are_columns_and_a_section_per_preset(tmp_path: Path) -> None:
+    _run(tmp_path / "sweep", "a", "default", "auto", 0.95, strategy="none", keep_ratio=None)
+    _run(tmp_path / "sweep", "b", "splatam", "torch", 0.5, strategy="none", keep_ratio=None)
+    _run(tmp_path / "sweep", "c", "splatam", "torch", 0.5, strategy="pocket")
+    result = make_report([tmp_path / "sweep"], tmp_path / "out")
+    runs = pd.read_csv(tmp_path / "out" / "runs.csv")
+    by_preset = runs.groupby("slam_preset")["slam.raster_backend"].agg(set).to_dict()
+    assert by_preset == {"default": {"auto (fused)"}, "splatam": {"torch"}}  # auto names what it chose
+    assert set(runs["slam.densify_silhouette"]) == {0.95, 0.5}
+    text = (tmp_path / "out" / "tables.md").read_text()
+    section = text[text.index("## Harness settings"):]
+    assert "| kitti | splatam | 2 | torch |" in section
+    assert "`prune.every`" in section and "`slam.tracking_iters`" not in section  # unset keys are left out
+    assert result.runs["slam.refine_iters"].tolist() == [0, 0, 0]
+
+
+def test_run_without_config_has_empty_settings(tmp_path: Path) -> None:
+    run_dir = write_run(tmp_path / "r", strategy="none", seq="06")
+    assert set(read_settings(run_dir, "cpu").values()) == {None}
+
+
+def test_ratio_plot_draws_the_preset_that_swept_the_ratio(tmp_path: Path) -> None:
+    """The area sweep ran under splatam only; default-preset rows must not turn it off or join it."""
+    for seed in (0, 1):
+        for keep in (0.2, 0.4, 0.8):
+            _run(tmp_path / "s", f"area{keep}_{seed}", "splatam", "auto", 0.5, strategy="area", keep_ratio=keep,
+                 seed=seed, ate_rmse_m=0.1 + keep + seed / 100)  # fmt: skip
+        for preset in ("default", "splatam"):
+            _run(tmp_path / "s", f"pocket_{preset}_{seed}", preset, "auto", 0.5, strategy="pocket", seed=seed)
+            _run(tmp_path / "s", f"none_{preset}_{seed}", preset, "auto", 0.5, strategy="none", keep_ratio=None,
+                 seed=seed)  # fmt: skip
+    make_report([tmp_path / "s"], tmp_path / "out")
+    assert (tmp_path / "out" / "ratio_kitti.png").stat().st_size > 0
