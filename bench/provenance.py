@@ -44,25 +44,35 @@ def collect(device: torch.device) -> dict[str, Any]:
     }
 
 
-# what a result depends on (the configs live in bench/conf)
+# what a result depends on (the configs live in bench/conf); the report code only reads results
 CODE_PATHS = ("bench", "strategies", "hydra_plugins", "pyproject.toml")
+READ_ONLY_PATHS = ("bench/report/",)
 
 
 def code_version() -> dict[str, Any]:
-    """Commit, dirty flag and a hash of the uncommitted code diff (``None`` outside a git checkout).
+    """Commit, the code tree's hash, dirty flag and a hash of the uncommitted code diff (``None``
+    outside a git checkout).
 
+    ``code_tree`` hashes the committed files under ``CODE_PATHS`` (report code left out), so that a
+    commit that touches only docs, tests or reports leaves it, and a finished sweep, as they were.
     The diff hash makes two different uncommitted edits on one commit two code versions.
     """
+    paths = [*CODE_PATHS, *(f":(exclude){p}" for p in READ_ONLY_PATHS)]
     commit = _git("rev-parse", "HEAD")
-    status = _git("status", "--porcelain", "--untracked-files=no", "--", *CODE_PATHS)
+    listing = _git("ls-tree", "-r", "HEAD", "--", *CODE_PATHS)  # ls-tree takes no exclude pathspecs
+    tree = None if listing is None else "\n".join(
+        line for line in listing.splitlines() if not line.split("\t", 1)[-1].startswith(READ_ONLY_PATHS)
+    )
+    status = _git("status", "--porcelain", "--untracked-files=no", "--", *paths)
     dirty = bool(status) if status is not None else None
-    diff = _git("diff", "HEAD", "--", *CODE_PATHS) if dirty else None
+    diff = _git("diff", "HEAD", "--", *paths) if dirty else None
     try:
         package = version("pocketbench")
     except PackageNotFoundError:
         package = None
     return {
         "git_commit": commit,
+        "code_tree": hashlib.sha256(tree.encode()).hexdigest()[:12] if tree else None,
         "git_dirty": dirty,
         "diff_sha": hashlib.sha256(diff.encode()).hexdigest()[:12] if diff else None,
         "package": package,

@@ -62,7 +62,7 @@ def redo_reason(stored: dict[str, Any] | None, key: dict[str, Any]) -> str | Non
     if run.get("config_hash") != key["config_hash"]:
         return f"config changed (hash {run.get('config_hash')} -> {key['config_hash']})"
     old_code, new_code = run.get("code_version"), key["code_version"]
-    if old_code != new_code:
+    if not same_code(old_code, new_code):
         return f"code version changed ({_code(old_code)} -> {_code(new_code)})"
     old_in, new_in = run.get("inputs"), key["inputs"]
     if old_in != new_in:
@@ -72,6 +72,14 @@ def redo_reason(stored: dict[str, Any] | None, key: dict[str, Any]) -> str | Non
         more = f" and {len(changed) - 3} more" if len(changed) > 3 else ""
         return f"input files changed: {', '.join(_short(c) for c in changed[:3])}{more}"
     return None
+
+
+def same_code(old: Any, new: Any) -> bool:
+    """Equal code versions; where both carry ``code_tree``, the commit itself may differ (a commit
+    that changed no code under ``provenance.CODE_PATHS``)."""
+    if isinstance(old, dict) and isinstance(new, dict) and old.get("code_tree") and new.get("code_tree"):
+        return all(old.get(k) == new.get(k) for k in ("code_tree", "git_dirty", "diff_sha", "package"))
+    return old == new
 
 
 def _code(code: Any) -> str:

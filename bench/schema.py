@@ -36,7 +36,7 @@ RUN_FIELDS: tuple[Field, ...] = (
     Field("keep_ratio", "", "`prune.keep_ratio` given to the strategy; null without `+strategy`"),
     Field("slam_preset", "", "`slam.name`, the backend preset (runs of different presets never pool)", "text"),
     Field("config_hash", "", "hash of the resolved config (what resume compares)", "text"),
-    Field("code_version", "", "git commit, dirty flag and uncommitted-diff hash (resume compares it)", "object"),
+    Field("code_version", "", "commit, code-tree hash, dirty flag, diff hash (resume ignores the commit)", "object"),
     Field("inputs", "", "input-file fingerprint: text files by content, images by name, size, mtime", "object"),
 )
 

@@ -364,6 +364,19 @@ def test_resume_redoes_on_any_change_and_says_why() -> None:
     assert redo_reason(old, key) == "input files not fingerprinted by the previous run"
 
 
+def test_resume_keeps_runs_across_commits_that_change_no_code() -> None:
+    """A docs-only commit keeps a finished sweep; a code change, or an older record without the
+    tree hash, redoes it."""
+    from bench.resume import redo_reason, resume_key
+
+    code = {"git_commit": "a" * 40, "code_tree": "t1", "git_dirty": False, "diff_sha": None, "package": "0.1.0"}
+    done = {"status": "ok", "run": resume_key("cfg1", code, {})}
+    assert redo_reason(done, resume_key("cfg1", {**code, "git_commit": "b" * 40}, {})) is None
+    assert "code version changed" in redo_reason(done, resume_key("cfg1", {**code, "code_tree": "t2"}, {}))
+    legacy = {**done, "run": resume_key("cfg1", {k: v for k, v in code.items() if k != "code_tree"}, {})}
+    assert "code version changed" in redo_reason(legacy, resume_key("cfg1", {**code, "git_commit": "b" * 40}, {}))
+
+
 def test_input_fingerprint_follows_content_and_images(tmp_path: Path) -> None:
     from bench.resume import input_fingerprint
 
