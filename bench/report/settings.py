@@ -55,7 +55,7 @@ def read_settings(run_dir: Path, device: str | None) -> dict[str, Any]:
 
 
 def _values(column: pd.Series) -> str:
-    seen = [v for v in dict.fromkeys(column.tolist()) if v is not None and not (isinstance(v, float) and v != v)]
+    seen = [v for v in dict.fromkeys(column.tolist()) if not pd.isna(v)]  # None, NaN and pd.NA alike
     return ", ".join(str(v) for v in seen) if seen else "—"
 
 
