@@ -18,7 +18,7 @@ from bench.report.names import use_method_names
 from bench.report.paper import load_paper_tables
 from bench.report.plots import DPI, make_plots
 from bench.report.render import tables_markdown, to_latex
-from bench.report.settings import settings_markdown
+from bench.report.settings import mixed_settings, settings_markdown
 from bench.report.stats import confidence_interval
 from bench.report.tables import SELECTABLE_METRICS, Table, build_tables
 
@@ -102,7 +102,7 @@ def _make_report(
     except OSError as exc:
         raise ReportError(f"cannot create output dir '{out}': {exc.strerror or exc}") from exc
     runs = collection.runs
-    warnings = list(collection.warnings)
+    warnings = list(collection.warnings) + mixed_settings(runs)
 
     files = [out / "runs.csv"]
     runs.to_csv(files[0], index=False)

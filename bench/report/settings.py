@@ -78,3 +78,22 @@ def settings_markdown(runs: pd.DataFrame) -> str:
         cells = [_values(group[k]) for k in keys]
         lines.append(f"| {dataset} | {preset} | {len(group)} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+POOL_KEYS: tuple[str, ...] = ("dataset", "seq", "strategy", "keep_ratio", "slam_preset")  # what one table cell pools
+
+
+def mixed_settings(runs: pd.DataFrame) -> list[str]:
+    """A warning per table cell whose runs differ in a setting: a cell pools seeds of one
+    (dataset, sequence, strategy, keep ratio, preset), so runs at two resolutions (say) would be
+    averaged as if they were seeds. Report such sweeps into separate folders."""
+    keys = [k for k in SETTING_KEYS if k in runs]
+    if runs.empty or not keys:
+        return []
+    warnings = []
+    for cell, group in runs.groupby(list(POOL_KEYS), dropna=False, sort=True):
+        differ = [f"{k} ({_values(group[k])})" for k in keys if len({str(v) for v in group[k]}) > 1]
+        if differ:
+            name = "/".join("-" if pd.isna(v) else str(v) for v in cell)
+            warnings.append(f"{name}: {len(group)} runs pooled as seeds differ in {', '.join(differ)}")
+    return warnings

@@ -63,3 +63,14 @@ def test_ratio_plot_draws_the_preset_that_swept_the_ratio(tmp_path: Path) -> Non
                  seed=seed)  # fmt: skip
     make_report([tmp_path / "s"], tmp_path / "out")
     assert (tmp_path / "out" / "ratio_kitti.png").stat().st_size > 0
+
+
+def test_cells_pooling_runs_of_different_settings_are_named(tmp_path: Path) -> None:
+    """Seeds of one cell at two resolutions would be averaged as noise: the report says so."""
+    for seed, downscale in ((0, 4), (1, 2)):
+        run_dir = write_run(tmp_path / "s" / f"r{seed}", strategy="none", seq="06", seed=seed, keep_ratio=None)
+        (run_dir / "config.yaml").write_text(CONFIG.format(backend="auto", sil=0.5).replace("downscale: 4",
+                                             f"downscale: {downscale}"))  # fmt: skip
+    result = make_report([tmp_path / "s"], tmp_path / "out")
+    expected = "2 runs pooled as seeds differ in dataset.downscale (4, 2)"
+    assert any(expected in w for w in result.warnings), result.warnings
