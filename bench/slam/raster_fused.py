@@ -77,16 +77,14 @@ def _bin_pairs(order, rect, n_tiles, tiles_x):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
-def _box(mx, my, a, b, c, o, x0, x1, y0, y1):  # pragma: no cover - compiled
-    """Pixels [bx0, bx1) x [by0, by1) of the tile where o exp(power) can reach 1/255 (empty if none)."""
-    if o < ALPHA_MIN:
-        return 0, 0, 0, 0
-    r2 = _F(2.0) * (LN255 + np.log(o))  # d^T S^-1 d <= r2  <=>  o exp(power) >= 1/255
+def _ellipse_box(mx, my, a, b, c, r2, margin, x0, x1, y0, y1):  # pragma: no cover - compiled
+    """Pixels [bx0, bx1) x [by0, by1) of the tile inside d^T S^-1 d <= r2 around (mx, my), each axis
+    extent widened by ``margin`` px (empty if none, or if the conic is degenerate)."""
     det = a * c - b * b
     if det <= _F(0.0):
         return 0, 0, 0, 0
-    ex = np.sqrt(r2 * c / det) + _F(1e-3)  # axis extents of the ellipse (S_xx = c / det, S_yy = a / det)
-    ey = np.sqrt(r2 * a / det) + _F(1e-3)
+    ex = np.sqrt(r2 * c / det) + margin  # axis extents of the ellipse (S_xx = c / det, S_yy = a / det)
+    ey = np.sqrt(r2 * a / det) + margin
     bx0 = max(x0, int(np.ceil(mx - ex)))
     bx1 = min(x1, int(np.floor(mx + ex)) + 1)
     by0 = max(y0, int(np.ceil(my - ey)))
@@ -94,6 +92,15 @@ def _box(mx, my, a, b, c, o, x0, x1, y0, y1):  # pragma: no cover - compiled
     if bx0 >= bx1 or by0 >= by1:
         return 0, 0, 0, 0
     return bx0, bx1, by0, by1
+
+
+@njit(cache=True, inline="always")
+def _box(mx, my, a, b, c, o, x0, x1, y0, y1):  # pragma: no cover - compiled
+    """Pixels [bx0, bx1) x [by0, by1) of the tile where o exp(power) can reach 1/255 (empty if none)."""
+    if o < ALPHA_MIN:
+        return 0, 0, 0, 0
+    r2 = _F(2.0) * (LN255 + np.log(o))  # d^T S^-1 d <= r2  <=>  o exp(power) >= 1/255
+    return _ellipse_box(mx, my, a, b, c, r2, _F(1e-3), x0, x1, y0, y1)
 
 
 @njit(cache=True, inline="always")
@@ -177,15 +184,9 @@ def _forward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x, sta
                 pair_hits[k] = hits
                 pair_maxw[k] = maxw
                 cov = _F(0.0)
-                det = a * c - b * b
-                if o > _F(0.0) and det > _F(0.0):
+                if o > _F(0.0):
                     r2 = _F(-2.0) * COVERAGE_POWER_MIN
-                    ex = np.sqrt(r2 * c / det) + _F(1.0)
-                    ey = np.sqrt(r2 * a / det) + _F(1.0)
-                    cx0 = max(x0, int(np.ceil(mx - ex)))
-                    cx1 = min(x1, int(np.floor(mx + ex)) + 1)
-                    cy0 = max(y0, int(np.ceil(my - ey)))
-                    cy1 = min(y1, int(np.floor(my + ey)) + 1)
+                    cx0, cx1, cy0, cy1 = _ellipse_box(mx, my, a, b, c, r2, _F(1.0), x0, x1, y0, y1)
                     for y in range(cy0, cy1):
                         dy = _F(y) - my
                         for x in range(cx0, cx1):
