@@ -55,3 +55,25 @@ def make_kitti_copy(shared: Path, tmp_path: Path):
         return tmp_path / "kitti"
 
     return make
+
+
+def make_venv(path: Path) -> Path:
+    """A new venv at ``path`` that sees this test run's installed packages, returning its interpreter.
+
+    ``venv --system-site-packages`` would expose the *base* interpreter's site, which is not where the
+    dependencies live when the tests themselves run in a venv (the README's set-up) or a conda env. A ``.pth``
+    file listing the running interpreter's site directories works for all three. Its lines only extend
+    ``sys.path``: ``.pth`` files inside those directories (an editable install of this checkout among them) are
+    not processed, so the package under test is whatever the new venv installs itself.
+    """
+    import site
+    import subprocess
+    import sys
+
+    subprocess.run([sys.executable, "-m", "venv", str(path)], check=True, timeout=300)
+    python = path / "bin" / "python"
+    target = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                            check=True, capture_output=True, text=True, timeout=60).stdout.strip()  # fmt: skip
+    dirs = [*site.getsitepackages(), site.getusersitepackages()]
+    (Path(target) / "_outer_site.pth").write_text("".join(f"{d}\n" for d in dirs if Path(d).is_dir()))
+    return python

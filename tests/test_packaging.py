@@ -12,6 +12,7 @@ import yaml
 
 from bench.cli import help_groups
 from bench.conf import CONF_DIR
+from tests.conftest import make_venv
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -47,13 +48,12 @@ def test_launcher_configs_share_their_settings():
 
 @pytest.fixture(scope="module")
 def wheel_venv(tmp_path_factory) -> Path:
-    """A venv holding this checkout built as a wheel (dependencies from the system site)."""
+    """A venv holding this checkout built as a wheel, alone (its dependencies come from this run's site)."""
     root = tmp_path_factory.mktemp("wheel")
     build = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation",
                             "-w", str(root / "dist"), str(REPO)], capture_output=True, text=True, timeout=300)
     assert build.returncode == 0, build.stderr[-2000:]
-    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(root / "venv")], check=True,
-                   timeout=300)  # fmt: skip
+    make_venv(root / "venv")
     wheel = next((root / "dist").glob("pocketbench-*.whl"))
     install = subprocess.run([str(root / "venv" / "bin" / "python"), "-m", "pip", "install", "-q", "--no-deps",
                               str(wheel)], capture_output=True, text=True, timeout=300)  # fmt: skip

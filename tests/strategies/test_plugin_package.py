@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.conftest import make_venv
+
 REPO = Path(__file__).resolve().parents[2]
 EXAMPLE = REPO / "examples" / "pocketbench-nearest"
 TINY = ["dataset.width=48", "dataset.height=32", "dataset.n_frames=4", "slam.tracking_iters=4",
@@ -27,9 +29,7 @@ def test_readme_shows_the_example_plugin_verbatim():
 
 @pytest.mark.slow
 def test_installed_plugin_runs_by_name_without_yaml(tmp_path):
-    venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], check=True, timeout=300)
-    python = str(venv / "bin" / "python")
+    python = str(make_venv(tmp_path / "venv"))  # sees this run's packages; the plugin is installed on its own
     # built with this interpreter's setuptools (a fresh venv's own may lack bdist_wheel), installed in the venv
     build = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w",
                             str(tmp_path / "dist"), str(EXAMPLE)], capture_output=True, text=True, timeout=300)
