@@ -44,6 +44,14 @@ class EvalConfig:
 
 
 @dataclass
+class VizConfig:
+    """Pictures of what pruning removed (``bench/viz.py``); they cost renders inside the SLAM loop."""
+
+    pruning: bool = False  # pruned_kfNNN.png (+ .npz for reports) at the keyframes below
+    every: int = 5  # keyframes 5, 10, 15, ... (keyframe 0 has nothing to prune)
+
+
+@dataclass
 class StrategyConfig:
     """``+strategy=NAME``: the plugin's name and its hyperparameters (its own dataclass once registered)."""
 
@@ -61,6 +69,10 @@ class RunConfig:
     prune: PruneConfig = field(default_factory=PruneConfig)  # bench/strategy.py; +experiment=released changes it
     memory: MemoryConfig = field(default_factory=MemoryConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
+    viz: VizConfig = field(default_factory=VizConfig)
+    # the map as a 3DGS PLY (bench/export.py): "final" writes map.ply at the end; "every_keyframe" also
+    # keeps maps/kf_NNN.npz after each keyframe (python -m bench.export RUN_DIR --keyframe K)
+    save_maps: str = "final"
     seq: str | None = None  # always a string: seq=00 and seq=10 behave alike; None = the dataset's default
     seed: int = 0  # varies what a repeat should vary, nothing else (README: "Comparisons that hold")
     device: str = "auto"  # auto | cpu | cuda[:N]

@@ -33,6 +33,7 @@ from bench.config import RunConfig, plain, to_run_config
 from bench.datasets import Sequence, canonical_seq, open_sequence
 from bench.determinism import repeatable
 from bench.errors import BenchError, ConfigError, TrackingLost
+from bench.export import MAP_FILE, save_snapshot, write_map
 from bench.measure import MemoryProbe, PhaseTimer
 from bench.metrics.trajectory import TumAppender
 from bench.progress import Phase
@@ -43,6 +44,7 @@ from bench.slam.se3 import inverse
 from bench.slam.system import FrameResult, System
 from bench.strategy import CheckedStrategy, Strategy, load_strategy
 from bench.validate import validate
+from bench.viz import PruneViz
 
 log = logging.getLogger(__name__)
 
@@ -230,6 +232,8 @@ def _previous(out: Path) -> dict[str, Any] | None:
 def _execute(cfg: RunConfig, out: Path, device: torch.device, record: dict[str, Any], seq: Sequence):
     t_start = time.perf_counter()
     parts = build(cfg, device, seq)
+    if cfg.viz.pruning:
+        parts.viz = parts.system.on_prune = PruneViz(parts.system, out, cfg.viz.every, describe(cfg))
     record["metrics"] = metrics = {"num_frames": 0, "num_keyframes": 0}
     drive = drive_frames(cfg, parts, out, record)
     with deferred_signals() if drive.stop is not None else contextlib.nullcontext():
@@ -251,6 +255,7 @@ class Parts:
     system: System
     timer: PhaseTimer
     probe: MemoryProbe
+    viz: PruneViz | None = None  # viz.pruning
 
 
 def open_seq(cfg: RunConfig) -> Sequence:
@@ -329,6 +334,8 @@ def drive_frames(cfg: RunConfig, parts: Parts, out: Path, record: dict[str, Any]
                     writer.writerow(row)
                     fh.flush()
                     drive.windows.append(row)
+                    if cfg.save_maps == "every_keyframe":
+                        save_snapshot(out, res.keyframe_index, system.map)
                     metrics["num_keyframes"] = len(drive.windows)
                     write_json(out / schema.METRICS_FILE, record)  # still running; counts so far, for a later reader
                     parts.probe.start_window()
@@ -418,7 +425,17 @@ def finish(cfg: RunConfig, parts: Parts, drive: Drive, out: Path, device: torch.
     memory_timeline(out / "memory.png", drive.windows, title=f"{run_keys(cfg)['strategy']} on {parts.seq.name}")
     if not partial:
         write_density(out / "density.npz", system)
+    write_map(out / MAP_FILE, system.map)
+    if parts.viz is not None:
+        parts.viz.draw_all()
     return metrics
+
+
+def describe(cfg: RunConfig) -> str:
+    """A run in a figure title: strategy, keep ratio and preset."""
+    keys = run_keys(cfg)
+    ratio = "" if keys["keep_ratio"] is None else f" keep {keys['keep_ratio']:g}"
+    return f"{keys['strategy']}{ratio} [{keys['slam_preset']}]"
 
 
 @torch.no_grad()

@@ -85,9 +85,12 @@ SETTINGS: dict[str, Spec] = {
     "eval.rpe": Spec("bool"),
     "eval.lpips": Spec("bool"),
     "eval.lpips_weights": Spec("path", nullable=True),
+    "save_maps": Spec("str", choices=("final", "every_keyframe")),  # bench/export.py:SAVE_MAPS
+    "viz.pruning": Spec("bool"),
+    "viz.every": Spec("int", 1),
 }
 # Groups whose keys are all listed above: an unknown key there is a typo (``+eval.evry=2``).
-CLOSED_GROUPS = ("prune", "memory", "eval")
+CLOSED_GROUPS = ("prune", "memory", "eval", "viz")
 OPEN_TOP = {"dataset", "slam", "strategy", *CLOSED_GROUPS}  # checked by their own specs
 
 # Dataset knobs shared by the built-in loaders; a third-party dataset's other keys pass through.

@@ -194,6 +194,8 @@ class System:
         self._gray: np.ndarray | None = None  # [H, W] uint8 of the frame being processed (flow_pnp)
         self._prev_obs: tuple | None = None  # (gray [H, W] uint8, depth [H, W] float) of the last frame
         self.init_source: list[str] = []  # per tracked frame: "flow_pnp" or "velocity"
+        # called after each prune with (kf_idx, w2c, render before [RasterOutput], keep [N before] bool or None)
+        self.on_prune: Callable[[int, torch.Tensor, RasterOutput, torch.Tensor | None], None] | None = None
 
     # ------------------------------------------------------------------ rendering
     def render(
@@ -498,7 +500,9 @@ class System:
         st["_track_grad_sum"].zero_()
         st["_track_grad_n"].zero_()
         n_candidates = int(candidates.sum())
-        if keep is None:
-            return 0, n_candidates
-        keep = keep.to(torch.bool) | is_new  # new Gaussians are exempt whatever the strategy says
-        return self.map.remove(keep), n_candidates
+        if keep is not None:
+            keep = keep.to(torch.bool) | is_new  # new Gaussians are exempt whatever the strategy says
+        removed = 0 if keep is None else self.map.remove(keep)
+        if self.on_prune is not None:  # viz.pruning (bench/viz.py): `out` is the render before the prune
+            self.on_prune(kf_idx, w2c, out, keep)
+        return removed, n_candidates
