@@ -10,8 +10,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from bench.errors import BenchError
-from bench.report.build import load_labels, make_report
+from bench.errors import BenchError, ReportError
+from bench.report.build import load_labels, make_report, redraw
 from bench.report.plots import DPI
 
 
@@ -20,8 +20,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         prog="python -m bench.report",
         description="Tables (CSV, LaTeX, Markdown) and figures from SLAM run dirs.",
     )
-    parser.add_argument("dirs", nargs="+", type=Path, help="sweep or run dirs, searched recursively")
-    parser.add_argument("--out", required=True, type=Path, help="output dir, e.g. reports/NAME")
+    parser.add_argument("dirs", nargs="*", type=Path, help="sweep or run dirs, searched recursively")
+    parser.add_argument("--out", type=Path, help="output dir, e.g. reports/NAME")
+    parser.add_argument("--redraw", type=Path, default=None, metavar="REPORT_DIR",
+                        help="draw the figures of a report folder again from its runs.csv and keyframes.csv "
+                             "(no run dirs needed), in place")  # fmt: skip
     parser.add_argument("--paper", action="store_true", help="add the paper's figures as '(paper)' rows")
     parser.add_argument("--baseline", default="none", help="strategy the relative columns compare with")
     parser.add_argument("--format", default="png", help="figure formats, comma-separated: png,pdf,svg (default png)")
@@ -36,6 +39,17 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
         formats = tuple(f.strip().lower().lstrip(".") for f in args.format.split(",") if f.strip())
+        if args.redraw is not None:
+            if args.dirs or args.out:
+                raise ReportError(f"--redraw takes no run dirs and no --out, found {len(args.dirs)} dirs"
+                                  f"{' and --out' if args.out else ''}")  # fmt: skip
+            result = redraw(args.redraw, formats, args.dpi)
+            for warning in result.warnings:
+                print(f"warning: {warning}", file=sys.stderr)
+            print(f"{len(result.runs)} runs: redrew {len(result.files)} figures in {result.out}")
+            return 0
+        if not args.dirs or args.out is None:
+            raise ReportError("expected run dirs and --out (or --redraw REPORT_DIR)")
         result = make_report(args.dirs, args.out, paper=args.paper, baseline=args.baseline, formats=formats,
                              dpi=args.dpi, labels=load_labels(args.labels))  # fmt: skip
     except BenchError as exc:

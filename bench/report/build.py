@@ -16,7 +16,7 @@ from bench.errors import ReportError
 from bench.report.collect import collect
 from bench.report.names import use_method_names
 from bench.report.paper import load_paper_tables
-from bench.report.plots import DPI, make_plots
+from bench.report.plots import DPI, make_plots, read_keyframes
 from bench.report.render import tables_markdown, to_latex
 from bench.report.settings import mixed_settings, settings_markdown
 from bench.report.stats import confidence_interval
@@ -106,6 +106,8 @@ def _make_report(
 
     files = [out / "runs.csv"]
     runs.to_csv(files[0], index=False)
+    files.append(out / KEYFRAMES_FILE)
+    keyframe_rows(runs, warnings.append).to_csv(files[-1], index=False)
 
     tables, table_warnings = build_tables(runs, load_paper_tables() if paper else None, baseline, metrics)
     warnings += table_warnings
@@ -121,6 +123,52 @@ def _make_report(
 
     files += make_plots(runs, out, warnings.append, formats, dpi)
     return ReportResult(out, runs, tables, files, collection.skipped, warnings)
+
+
+KEYFRAMES_FILE = "keyframes.csv"  # every finished run's keyframes.csv rows, keyed by its runs.csv path
+TEXT_COLUMNS = ("strategy", "method", "dataset", "seq", "slam_preset", "status", "path")
+
+
+def keyframe_rows(runs: pd.DataFrame, warn) -> pd.DataFrame:
+    """The per-keyframe rows the figures read, for every finished run: with runs.csv they make a
+    report folder that ``redraw`` can draw again after the run dirs are gone."""
+    frames = []
+    for path, status in zip(runs["path"], runs["status"], strict=True):
+        if status not in ("ok", "lost"):
+            continue
+        kf = read_keyframes(Path(path), warn)
+        if kf is not None:
+            frames.append(kf.assign(path=str(path)))
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=["path"])
+
+
+def redraw(report_dir: Path, formats: tuple[str, ...] = ("png",), dpi: int = DPI) -> ReportResult:
+    """The figures of a report folder again, from its ``runs.csv`` and ``keyframes.csv`` alone.
+
+    Accuracy-memory, keep-ratio and per-keyframe figures need nothing else; trajectory, density
+    and pruned-Gaussian figures need the run dirs and are drawn only where those still exist.
+    """
+    report_dir = Path(report_dir)
+    runs_path = report_dir / "runs.csv"
+    if not runs_path.is_file():
+        raise ReportError(f"expected a report folder with runs.csv, found no '{runs_path}'")
+    try:
+        runs = pd.read_csv(runs_path, dtype={c: str for c in TEXT_COLUMNS})
+        if "seed" in runs:
+            runs["seed"] = runs["seed"].astype("Int64")
+        kf_path = report_dir / KEYFRAMES_FILE
+        rows = pd.read_csv(kf_path, dtype={"path": str}) if kf_path.is_file() else pd.DataFrame(columns=["path"])
+    except (OSError, ValueError) as exc:
+        raise ReportError(f"cannot read the report tables in '{report_dir}': {exc}") from None
+    missing = sorted({"strategy", "dataset", "seq", "status", "path", "keep_ratio"} - set(runs.columns))
+    if missing:
+        raise ReportError(f"expected runs.csv columns {', '.join(missing)} in '{runs_path}', found none of them")
+    warnings: list[str] = []
+    if not len(rows):
+        warnings.append(f"no {KEYFRAMES_FILE} in '{report_dir}': per-keyframe figures need the run dirs")
+    keyframes = {str(p): g.drop(columns="path").reset_index(drop=True) for p, g in rows.groupby("path")}
+    files = make_plots(runs, report_dir, warnings.append, formats, dpi, keyframes=keyframes)
+    return ReportResult(report_dir, runs, [], files, [], warnings)
 
 
 STATS_COLUMNS: tuple[str, ...] = (

@@ -4,7 +4,8 @@ Built on ``matplotlib.figure.Figure`` rather than pyplot: no global backend swit
 used for PNG regardless) and no figure left open in a caller's session. Each plot reads only
 the run dir files the harness writes; a missing or malformed file costs that line a warning,
 never the report. Per-sequence figures take the whole dataset's runs plus a sequence, so labels,
-colours and markers match the tables and each other; they show each method's lowest-seed run.
+colours and markers match the tables and each other. The visual language (a colour per strategy,
+panels per preset, legends outside, seeds as bands) is ``bench.report.style``'s.
 """
 
 from __future__ import annotations
@@ -15,58 +16,45 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import matplotlib
 import numpy as np
 import pandas as pd
 from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
 from matplotlib.ticker import FormatStrFormatter
 
-from bench import schema
+from bench import schema, viz
 from bench.errors import MetricError, ReportError
 from bench.metrics.trajectory import MAX_DIFF_S, Trajectory, aligned_positions, read_tum
 from bench.report.collect import is_missing
-from bench.report.names import STRATEGY_ORDER, dataset_name, file_token, method_name, sequence_sort_key
+from bench.report.names import dataset_name, file_token, method_name, sequence_sort_key
+from bench.report.style import (
+    Panel,
+    apply_fonts,
+    band,
+    fig_title,
+    key,
+    legend_outside,
+    new_figure,
+    panel_groups,
+    ratio_style,
+    series_label,
+    strategy_colour,
+    strategy_keys,
+)  # fmt: skip
 from bench.report.tables import Variant, variant_runs, variants
 
 Warn = Callable[[str], None]
+PRUNED_GLOB = viz.PRUNED_GLOB
 DPI = 110
+DODGE = 0.008  # keep-ratio offset between strategies run at one ratio, so their bars do not overlap
 DENSITY_CELLS = 160  # heatmap cells along the longer image side (Fig. 4 is a coarse heatmap too)
-
-
-MARKERS: tuple[str, ...] = ("o", "s", "^", "D", "v", "P")
-DASHES: tuple[str, ...] = ("-", "-.", ":", (0, (5, 1)))
-
-
-class Looks:
-    """A fixed colour per strategy (one method looks the same in every figure), and a marker and
-    dash per keep ratio within a strategy."""
-
-    def __init__(self, runs: pd.DataFrame) -> None:
-        self._extra = sorted(s for s in set(runs["strategy"]) if s not in STRATEGY_ORDER)
-        self._nth: dict[Variant, int] = {}
-        for variant in variants(runs):
-            self._nth[variant] = sum(v.strategy == variant.strategy for v in self._nth)
-
-    def colour(self, strategy: str) -> tuple[float, ...]:
-        palette = matplotlib.colormaps["tab10"].colors
-        if strategy in STRATEGY_ORDER:
-            index = STRATEGY_ORDER.index(strategy)
-        else:
-            index = len(STRATEGY_ORDER) + (self._extra.index(strategy) if strategy in self._extra else 0)
-        return palette[index % len(palette)]
-
-    def marker(self, variant: Variant) -> str:
-        return MARKERS[self._nth.get(variant, 0) % len(MARKERS)]
-
-    def dash(self, variant: Variant) -> str | tuple:
-        return DASHES[self._nth.get(variant, 0) % len(DASHES)]
 
 
 FORMATS: tuple[str, ...] = ("png", "pdf", "svg")
 # What the figure files are made as; ``make_plots`` sets it for the duration of one report.
-_output: dict[str, Any] = {"formats": ("png",), "dpi": DPI}
+_output: dict[str, Any] = {"formats": ("png",), "dpi": DPI, "keyframes": {}}
 # keyframes.csv memory columns as a reader knows them
 PROBE_NAMES: dict[str, str] = {
     "cuda_alloc_peak_mib": "CUDA allocator",
@@ -100,6 +88,9 @@ def representative(runs: pd.DataFrame) -> pd.Series | None:
 
 
 def read_keyframes(run_dir: Path, warn: Warn) -> pd.DataFrame | None:
+    stored = _output.get("keyframes", {}).get(str(run_dir))
+    if stored is not None:
+        return stored
     path = Path(run_dir) / schema.KEYFRAMES_FILE
     if not path.is_file():
         return None
@@ -121,74 +112,130 @@ def peak_column(run: pd.Series, keyframes: pd.DataFrame) -> str | None:
     return column if column in keyframes.columns and keyframes[column].notna().any() else None
 
 
-def plot_memory_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn) -> Path | None:
-    """Fig. 5: peak memory (solid, left axis) and map state (dashed, right axis) per keyframe, and
-    beside it the churn panel: Gaussians in the map (solid) and added so far (dotted).
+def _runs_to_show(vr: pd.DataFrame) -> tuple[pd.DataFrame, bool]:
+    """The seeds a per-keyframe line averages: the ok runs, or the lost ones where none is ok."""
+    ok = vr[vr["status"] == "ok"]
+    if len(ok):
+        return ok, False
+    return vr[vr["status"] == "lost"], True
 
-    The map state is orders of magnitude below the process peak, so it gets its own axis. The churn
-    panel shows whether pruning shrank the map or only fed re-seeding: a pruned run whose dotted
-    line climbs far above the baseline's re-adds what it prunes.
+
+KfValue = Callable[[pd.Series, pd.DataFrame], "pd.Series | None"]  # one run's per-keyframe quantity
+
+
+def seed_band(
+    vr: pd.DataFrame, value: KfValue, warn: Warn, cache: dict[str, pd.DataFrame | None]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, bool] | None:
+    """(frames, mean, std, n seeds, lost) of a per-keyframe quantity over a variant's seeds.
+
+    Seeds may key-frame at different frames: each seed's series is interpolated onto the union of
+    their frames, within its own range only, and the std needs two seeds at a frame (else NaN).
     """
-    fig = Figure(figsize=(13.0, 4.2), layout="constrained")
-    ax, churn_ax = fig.subplots(1, 2, width_ratios=(1.4, 1.0))
-    state_ax = ax.twinx()
-    looks = Looks(runs)
-    probes: set[str] = set()
-    drawn = other_seeds = 0
-    one = runs[runs["seq"] == seq]
-    for variant in variants(runs):  # dataset-wide, so labels match the tables
-        run = representative(variant_runs(one, variant))
-        if run is None:
-            continue
-        kf = read_keyframes(Path(run["path"]), warn)
+    shown, lost = _runs_to_show(vr)
+    series: list[tuple[np.ndarray, np.ndarray]] = []
+    for _, run in shown.iterrows():
+        path = str(run["path"])
+        if path not in cache:
+            cache[path] = read_keyframes(Path(path), warn)
+        kf = cache[path]
         if kf is None or kf.empty:
             continue
-        x = kf["frame"] if "frame" in kf.columns else kf["kf"]
-        colour, marker = looks.colour(variant.strategy), looks.marker(variant)
-        label = variant.label + (" (lost)" if run["status"] == "lost" else "")
-        column = peak_column(run, kf)
-        if column is not None:
-            probes.add(column)
-            ax.plot(x, kf[column], "-", marker=marker, ms=4, color=colour, label=label)
-        state_ax.plot(x, kf["state_mib"], "--", marker=marker, ms=3, mfc="none", color=colour,
-                      label=None if column else label)  # fmt: skip
-        if "n_gaussians" in kf.columns:
-            churn_ax.plot(x, kf["n_gaussians"], "-", marker=marker, ms=3, color=colour, label=label)
-        if "n_added" in kf.columns:
-            churn_ax.plot(x, kf["n_added"].cumsum(), ":", color=colour)
-        drawn += 1
-        # the other seeds' peaks, thin: how much of a gap between methods the seeds alone open
-        for _, other in variant_runs(one, variant).iterrows():
-            if other["path"] == run["path"] or other["status"] not in ("ok", "lost"):
-                continue
-            okf = read_keyframes(Path(other["path"]), warn)
-            other_column = None if okf is None or okf.empty else peak_column(other, okf)
-            if other_column is not None:
-                ox = okf["frame"] if "frame" in okf.columns else okf["kf"]
-                ax.plot(ox, okf[other_column], "-", lw=0.8, alpha=0.35, color=colour)
-                other_seeds += 1
+        y = value(run, kf)
+        if y is None:
+            continue
+        x = (kf["frame"] if "frame" in kf.columns else kf["kf"]).to_numpy(dtype=float)
+        series.append((x, np.asarray(y, dtype=float)))
+    if not series:
+        return None
+    grid = np.unique(np.concatenate([x for x, _ in series]))
+    table = np.full((len(series), len(grid)), np.nan)
+    for row, (x, y) in zip(table, series, strict=True):
+        inside = (grid >= x.min()) & (grid <= x.max())
+        row[inside] = np.interp(grid[inside], x, y)
+    counts = np.isfinite(table).sum(axis=0)
+    mean = np.nanmean(table, axis=0)
+    std = np.full(len(grid), np.nan)
+    two = counts >= 2
+    std[two] = np.nanstd(table[:, two], axis=0, ddof=1)
+    return grid, mean, std, len(series), lost
+
+
+def _peak(run: pd.Series, kf: pd.DataFrame) -> pd.Series | None:
+    column = peak_column(run, kf)
+    return None if column is None else kf[column]
+
+
+# (file stem, figure title, rows: (y label, value of one run's keyframes.csv))
+PER_KEYFRAME: tuple[tuple[str, str, tuple[tuple[str, KfValue], ...]], ...] = (
+    ("memory_per_keyframe", "Memory per keyframe window", (
+        ("peak memory [MiB]", _peak),
+        ("map state [MiB]\n(parameters, gradients, Adam)", lambda _r, kf: kf["state_mib"]),
+    )),
+    ("gaussians_per_keyframe", "Gaussians per keyframe", (
+        ("Gaussians in the map [thousands]",
+         lambda _r, kf: kf["n_gaussians"] / 1e3 if "n_gaussians" in kf.columns else None),
+        ("Gaussians added since the start\n[thousands]",
+         lambda _r, kf: kf["n_added"].cumsum() / 1e3 if "n_added" in kf.columns else None),
+    )),
+)  # fmt: skip
+
+
+def plot_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn, stem: str, title: str,
+                      rows: tuple[tuple[str, KfValue], ...]) -> Path | None:  # fmt: skip
+    """Small multiples of per-keyframe quantities (paper Fig. 5): one column of panels per preset
+    (and per keep-ratio sweep), one row per quantity, y shared along a row; every seed of a
+    variant pooled into a mean line with a ± std band."""
+    one = runs[runs["seq"] == seq]
+    found = variants(runs)  # dataset-wide, so labels match the tables
+    panels = [p for p in panel_groups(found) if any(len(variant_runs(one, v)) for v in p.variants)]
+    if not panels:
+        return None
+    known = sorted(set(runs["strategy"]))
+    cache: dict[str, pd.DataFrame | None] = {}
+    fig = new_figure(2.0 + 3.3 * len(panels), 1.0 + 2.3 * len(rows))
+    axes = fig.subplots(len(rows), len(panels), squeeze=False, sharex=True, sharey="row")
+    drawn = most_seeds = 0
+    any_lost = False
+    probes: set[str] = set()
+    for col, panel in enumerate(panels):
+        for variant in panel.variants:
+            vr = variant_runs(one, variant)
+            ls, marker = ratio_style(variant, panel)
+            colour = strategy_colour(variant.strategy, known)
+            for row, (_, value) in enumerate(rows):
+                got = seed_band(vr, value, warn, cache)
+                if got is None:
+                    continue
+                x, mean, std, n, lost = got
+                band(axes[row, col], x, mean, std, colour, ls=ls, marker=marker)
+                drawn += 1
+                most_seeds = max(most_seeds, n)
+                any_lost = any_lost or lost
+            shown, _ = _runs_to_show(vr)
+            for _, run in shown.iterrows():
+                kf = cache.get(str(run["path"]))
+                column = None if kf is None else peak_column(run, kf)
+                if column:
+                    probes.add(column)
+        axes[0, col].set_title(panel.title or f"{dataset_name(dataset)} {seq}")
+        axes[-1, col].set_xlabel("frame")
     if not drawn:
         return None
-    probe_names = ", ".join(PROBE_NAMES.get(p, p) for p in sorted(probes)) or "n/a"
-    ax.set_xlabel("frame")
-    ax.set_ylabel(f"peak memory per keyframe window [MiB] ({probe_names})", fontsize="small")
-    state_ax.set_ylabel("map state (Gaussian parameters, gradients, Adam) [MiB]", fontsize="small")
-    ax.set_title(f"Memory per keyframe, {dataset_name(dataset)} {seq}")
-    ax.grid(alpha=0.3)
-    handles = ax.get_legend_handles_labels()[0] + state_ax.get_legend_handles_labels()[0]
-    handles += [_style_key("solid: peak memory (left axis)", ls="-"),
-                _style_key("dashed: map state (right axis)", ls="--")]  # fmt: skip
-    if other_seeds:
-        handles.append(_style_key("thin: the other seeds' peaks", ls="-", lw=0.8, alpha=0.35))
-    ax.legend(handles=handles, fontsize="x-small", loc="best")
-    churn_ax.set_xlabel("frame")
-    churn_ax.set_ylabel("Gaussians [count]", fontsize="small")
-    churn_ax.set_title("Churn")
-    churn_ax.grid(alpha=0.3)
-    churn_handles = churn_ax.get_legend_handles_labels()[0]
-    churn_handles += [_style_key("solid: Gaussians in the map", ls="-"), _style_key("dotted: added so far", ls=":")]
-    churn_ax.legend(handles=churn_handles, fontsize="x-small", loc="best")
-    return _save(fig, out / f"memory_per_keyframe_{file_token(dataset)}_{file_token(seq)}.png")
+    for row, (label, _) in enumerate(rows):
+        if label.startswith("peak memory") and probes:
+            label += "\n(" + ", ".join(PROBE_NAMES.get(p, p) for p in sorted(probes)) + ")"
+        axes[row, 0].set_ylabel(label)
+    for ax in axes.ravel():
+        apply_fonts(ax)
+    handles = strategy_keys(panels, known)
+    if most_seeds >= 2:
+        handles.append(key(f"line: mean of {most_seeds} seeds", "grey"))
+        handles.append(Patch(color="grey", alpha=0.25, label="band: ± 1 std over seeds"))
+    if any_lost:
+        handles.append(key("(every seed lost: lost runs shown)", "white"))
+    legend_outside(fig, handles)
+    fig_title(fig, f"{title}, {dataset_name(dataset)} {seq}")
+    return _save(fig, out / f"{stem}_{file_token(dataset)}_{file_token(seq)}.png")
 
 
 def read_trajectory(path: Path, warn: Warn) -> Trajectory | None:
@@ -212,45 +259,78 @@ def _aligned(est: Trajectory, gt: Trajectory | None, alignment: str, max_dt: flo
 
 
 def plot_trajectory(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn) -> Path | None:
-    """Top view of estimated vs ground-truth paths on the two axes of largest extent."""
-    looks = Looks(runs)
+    """Top view of estimated vs ground-truth paths on the two axes of largest extent: one panel per
+    preset (and keep-ratio sweep), the lowest seed of each variant, the ground truth in every panel."""
+    known = sorted(set(runs["strategy"]))
     gt: np.ndarray | None = None  # [M, 3] ground-truth positions
-    paths: list[tuple[Variant, np.ndarray, bool]] = []
     one = runs[runs["seq"] == seq]
-    for variant in variants(runs):  # dataset-wide, so labels match the tables
-        run = representative(variant_runs(one, variant))
-        if run is None:
-            continue
-        run_dir = Path(run["path"])
-        est = read_trajectory(run_dir / "traj_est.txt", warn)
-        if est is None:
-            continue
-        run_gt = read_trajectory(run_dir / "traj_gt.txt", warn)
-        gt = run_gt.positions_m if gt is None and run_gt is not None else gt
-        alignment = run.get("ate_alignment")
-        alignment = "se3" if is_missing(alignment) else str(alignment)
-        max_dt = run.get("ate_max_diff_s")
-        max_dt = MAX_DIFF_S if is_missing(max_dt) else float(max_dt)
-        paths.append((variant, _aligned(est, run_gt, alignment, max_dt, warn), run["status"] == "lost"))
-    if not paths:
+    drawn: list[tuple[Panel, list[tuple[Variant, np.ndarray, bool]]]] = []
+    seeds_shown: set[int] = set()
+    for panel in panel_groups(variants(runs)):  # dataset-wide, so labels match the tables
+        paths: list[tuple[Variant, np.ndarray, bool]] = []
+        for variant in panel.variants:
+            run = representative(variant_runs(one, variant))
+            if run is None:
+                continue
+            run_dir = Path(run["path"])
+            est = read_trajectory(run_dir / "traj_est.txt", warn)
+            if est is None:
+                continue
+            run_gt = read_trajectory(run_dir / "traj_gt.txt", warn)
+            gt = run_gt.positions_m if gt is None and run_gt is not None else gt
+            alignment = run.get("ate_alignment")
+            alignment = "se3" if is_missing(alignment) else str(alignment)
+            max_dt = run.get("ate_max_diff_s")
+            max_dt = MAX_DIFF_S if is_missing(max_dt) else float(max_dt)
+            paths.append((variant, _aligned(est, run_gt, alignment, max_dt, warn), run["status"] == "lost"))
+            if not is_missing(run.get("seed")):
+                seeds_shown.add(int(run["seed"]))
+        if paths:
+            drawn.append((panel, paths))
+    if not drawn:
         return None
-    extent_source = gt if gt is not None else np.vstack([p for _, p, _ in paths])
-    axes = sorted(np.argsort(np.ptp(extent_source, axis=0))[-2:])
+    extent_source = gt if gt is not None else np.vstack([p for _, paths in drawn for _, p, _ in paths])
+    axes_idx = sorted(np.argsort(np.ptp(extent_source, axis=0))[-2:])
     names = "xyz"
-    fig = Figure(figsize=(6.0, 5.5), layout="constrained")
-    ax = fig.add_subplot()
-    if gt is not None:
-        ax.plot(gt[:, axes[0]], gt[:, axes[1]], "k-", lw=2.0, alpha=0.6, label="ground truth")
-    for variant, xyz, lost in paths:
-        label = variant.label + (" (lost)" if lost else "")
-        ax.plot(xyz[:, axes[0]], xyz[:, axes[1]], ls=looks.dash(variant), lw=1.2,
-                color=looks.colour(variant.strategy), label=label)  # fmt: skip
-    ax.set_xlabel(f"{names[axes[0]]} [m]")
-    ax.set_ylabel(f"{names[axes[1]]} [m]")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_title(f"Trajectory, {dataset_name(dataset)} {seq} (estimates aligned as for ATE)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize="x-small")
+    span = np.ptp(extent_source[:, axes_idx], axis=0) + 1e-9
+    aspect = float(np.clip(span[1] / span[0], 0.35, 2.5))
+    ncols = min(4, len(drawn))
+    nrows = math.ceil(len(drawn) / ncols)
+    fig = new_figure(2.2 + 3.3 * ncols, 0.9 + nrows * 3.3 * aspect + 0.3)
+    axes = fig.subplots(nrows, ncols, squeeze=False, sharex=True, sharey=True)
+    any_lost = False
+    for ax, (panel, paths) in zip(axes.ravel(), drawn, strict=False):
+        if gt is not None:
+            ax.plot(gt[:, axes_idx[0]], gt[:, axes_idx[1]], "-", color="0.6", lw=3.0, zorder=1)
+        for variant, xyz, lost in paths:
+            ls, _ = ratio_style(variant, panel)
+            ax.plot(xyz[:, axes_idx[0]], xyz[:, axes_idx[1]], ls=ls, lw=1.3, zorder=2,
+                    color=strategy_colour(variant.strategy, known))  # fmt: skip
+            if lost:
+                any_lost = True
+                ax.plot(*xyz[-1, axes_idx], "x", ms=7, mew=2, color=strategy_colour(variant.strategy, known))
+        ax.set_title(panel.title or f"{dataset_name(dataset)} {seq}")
+        apply_fonts(ax)
+    everything = np.vstack([p for _, paths in drawn for _, p, _ in paths] + ([gt] if gt is not None else []))
+    lo, hi = everything[:, axes_idx].min(axis=0), everything[:, axes_idx].max(axis=0)
+    pad = 0.05 * float(max(hi - lo)) + 1e-6
+    axes[0, 0].set_xlim(lo[0] - pad, hi[0] + pad)  # shared by every panel
+    axes[0, 0].set_ylim(lo[1] - pad, hi[1] + pad)
+    for ax in axes.ravel()[: len(drawn)]:
+        ax.set_aspect("equal", adjustable="box")
+    for ax in axes[-1, :]:
+        ax.set_xlabel(f"{names[axes_idx[0]]} [m]")
+    for ax in axes[:, 0]:
+        ax.set_ylabel(f"{names[axes_idx[1]]} [m]")
+    for ax in axes.ravel()[len(drawn) :]:
+        ax.set_axis_off()
+    handles = [key("ground truth", "0.6", lw=3.0)] if gt is not None else []
+    handles += strategy_keys([p for p, _ in drawn], known)
+    if any_lost:
+        handles.append(key("x: where tracking was lost", "black", "none", "x"))
+    legend_outside(fig, handles)
+    seed = f"seed {min(seeds_shown)}" if len(seeds_shown) == 1 else "lowest seed of each method"
+    fig_title(fig, f"Trajectory, {dataset_name(dataset)} {seq} (top view, {seed}, aligned as for ATE)")
     return _save(fig, out / f"trajectory_{file_token(dataset)}_{file_token(seq)}.png")
 
 
@@ -285,48 +365,133 @@ def pool_counts(counts: np.ndarray, block: int) -> np.ndarray:
     return padded.reshape(padded.shape[0] // block, block, padded.shape[1] // block, block).sum(axis=(1, 3))
 
 
+def _image_axes(ax, colour: str) -> None:
+    """An image panel framed in its strategy's colour (the figures' one key to who is who)."""
+    ax.set_xticks([])
+    ax.set_yticks([])
+    for spine in ax.spines.values():
+        spine.set_edgecolor(colour)
+        spine.set_linewidth(2.5)
+
+
 def plot_density(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn) -> Path | None:
-    """Fig. 4: where each strategy's final Gaussians project, on one shared log colour scale."""
-    panels: list[tuple[str, np.ndarray, np.ndarray | None]] = []
+    """Fig. 4: where each strategy's final Gaussians project, on one shared log colour scale; one
+    row per preset (and keep-ratio sweep), the lowest seed of each variant."""
+    known = sorted(set(runs["strategy"]))
     one = runs[runs["seq"] == seq]
-    for variant in variants(runs):  # dataset-wide, so labels match the tables
-        run = representative(variant_runs(one, variant))
-        if run is None:
-            continue
-        density = read_density(Path(run["path"]), warn)
-        if density is not None:
-            panels.append((variant.label, *density))
-    if not panels:
+    rows: list[tuple[Panel, list[tuple[Variant, np.ndarray, np.ndarray | None]]]] = []
+    for panel in panel_groups(variants(runs)):  # dataset-wide, so labels match the tables
+        cells = []
+        for variant in panel.variants:
+            run = representative(variant_runs(one, variant))
+            density = None if run is None else read_density(Path(run["path"]), warn)
+            if density is not None:
+                cells.append((variant, *density))
+        if cells:
+            rows.append((panel, cells))
+    if not rows:
         return None
-    ncols = min(3, len(panels))
-    nrows = math.ceil(len(panels) / ncols)
-    h, w = panels[0][1].shape
+    ncols = max(len(cells) for _, cells in rows)
+    h, w = rows[0][1][0][1].shape
     block = max(1, math.ceil(max(h, w) / DENSITY_CELLS))
-    pooled = [pool_counts(counts, block) for _, counts, _ in panels]
-    fig = Figure(figsize=(3.6 * ncols, 3.6 * nrows * h / w + 0.8), layout="constrained")
-    axes = fig.subplots(nrows, ncols, squeeze=False)
-    norm = LogNorm(vmin=1.0, vmax=max(2.0, max(float(p.max()) for p in pooled)))
+    pooled = {id(c): pool_counts(c[1], block) for _, cells in rows for c in cells}
+    panel_w = 2.6
+    fig = new_figure(1.2 + panel_w * ncols, 0.7 + len(rows) * (panel_w * h / w + 0.55))
+    axes = fig.subplots(len(rows), ncols, squeeze=False)
+    norm = LogNorm(vmin=1.0, vmax=max(2.0, max(float(p.max()) for p in pooled.values())))
     mappable = None
-    for ax, (label, counts, image), cells in zip(axes.ravel(), panels, pooled, strict=False):
-        if image is not None:
-            ax.imshow(np.clip(image, 0.0, 1.0).mean(axis=2), cmap="gray", vmin=0.0, vmax=1.0)
-        ph, pw = cells.shape
-        extent = (-0.5, pw * block - 0.5, ph * block - 0.5, -0.5)
-        mappable = ax.imshow(np.ma.masked_less(cells, 1.0), cmap="inferno", norm=norm, alpha=0.75, extent=extent)
-        ax.set_xlim(-0.5, counts.shape[1] - 0.5)
-        ax.set_ylim(counts.shape[0] - 0.5, -0.5)
-        ax.set_title(f"{label}\n{int(counts.sum())} Gaussians in view", fontsize="small")
-        ax.set_axis_off()
-    for ax in axes.ravel()[len(panels) :]:
-        ax.set_axis_off()
+    for r, (panel, cells) in enumerate(rows):
+        for c, (variant, counts, image) in enumerate(cells):
+            ax = axes[r, c]
+            if image is not None:
+                ax.imshow(np.clip(image, 0.0, 1.0).mean(axis=2), cmap="gray", vmin=0.0, vmax=1.0)
+            cell = pooled[id(cells[c])]
+            ph, pw = cell.shape
+            extent = (-0.5, pw * block - 0.5, ph * block - 0.5, -0.5)
+            mappable = ax.imshow(np.ma.masked_less(cell, 1.0), cmap="inferno", norm=norm, alpha=0.8, extent=extent)
+            ax.set_xlim(-0.5, counts.shape[1] - 0.5)
+            ax.set_ylim(counts.shape[0] - 0.5, -0.5)
+            _image_axes(ax, strategy_colour(variant.strategy, known))
+            ax.set_title(f"{series_label(variant, panel)}\n{int(counts.sum()):,} in view", fontsize=8)
+        if panel.title:
+            axes[r, 0].set_ylabel(panel.title, fontsize=8)
+        for ax in axes[r, len(cells) :]:
+            ax.set_axis_off()
     if mappable is not None:
         unit = "pixel" if block == 1 else f"{block}x{block} px cell"
         bar = fig.colorbar(mappable, ax=axes.ravel().tolist(), label=f"Gaussian centres per {unit}", shrink=0.8)
         bar.ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
         bar.ax.yaxis.set_minor_formatter(FormatStrFormatter("%g"))
-    fig.suptitle(f"Gaussian density, {dataset_name(dataset)} {seq}")
+    fig_title(fig, f"Gaussian density at the last keyframe, {dataset_name(dataset)} {seq} (lowest seed; frame colour = "
+                 "method)")  # fmt: skip
     return _save(fig, out / f"density_{file_token(dataset)}_{file_token(seq)}.png")
 
+
+def _pruned_records(run_dir: Path, warn: Warn) -> dict[int, Path]:
+    """keyframe -> pruned_kfNNN.npz written by a run with viz.pruning=true."""
+    found: dict[int, Path] = {}
+    for path in sorted(Path(run_dir).glob(PRUNED_GLOB)):
+        try:
+            found[int(path.stem.removeprefix("pruned_kf"))] = path
+        except ValueError:
+            warn(f"skipped {path} in plots: expected a name pruned_kfNNN.npz")
+    return found
+
+
+def plot_pruned(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn) -> list[Path]:
+    """What each strategy removed on one keyframe (runs with ``viz.pruning=true``): one figure per
+    preset, one row per strategy (lowest seed): its render before and after the prune, and the
+    pruned Gaussians' centres over the keyframe coloured by their coverage C_i on one log scale.
+    The keyframe is the last one every shown run recorded."""
+    known = sorted(set(runs["strategy"]))
+    one = runs[runs["seq"] == seq]
+    written: list[Path] = []
+    for panel in panel_groups(variants(runs)):
+        shown: list[tuple[Variant, dict[int, Path]]] = []
+        for variant in panel.variants:
+            run = representative(variant_runs(one, variant))
+            records = {} if run is None else _pruned_records(Path(run["path"]), warn)
+            if records:
+                shown.append((variant, records))
+        common = set.intersection(*(set(r) for _, r in shown)) if shown else set()
+        if not common:
+            continue
+        kf = max(common)
+        try:
+            data = [(variant, viz.read(records[kf])) for variant, records in shown]
+        except (OSError, ValueError, KeyError) as exc:
+            warn(f"skipped the pruned-Gaussians figure of {dataset} {seq}: {exc}")
+            continue
+        h, w = data[0][1]["image"].shape[:2]
+        norm = viz.coverage_norm([r["coverage"] for _, r in data])
+        panel_w = 3.0
+        fig = new_figure(1.4 + 3 * panel_w, 1.0 + (len(data) + 1) * (panel_w * h / w + 0.35))
+        axes = fig.subplots(len(data) + 1, 3, squeeze=False)
+        axes[0, 0].imshow(data[0][1]["image"])
+        axes[0, 0].set_title(f"keyframe {kf} (frame {int(data[0][1]['frame'])})", fontsize=8)
+        _image_axes(axes[0, 0], "0.5")
+        for ax in axes[0, 1:]:
+            ax.set_axis_off()
+        points = None
+        for row, (variant, r) in enumerate(data, start=1):
+            colour = strategy_colour(variant.strategy, known)
+            name = series_label(variant, panel)
+            for col, (image, when) in enumerate(((r["before"], "before"), (r["after"], "after"))):
+                axes[row, col].imshow(image)
+                axes[row, col].set_title(f"{name}: render {when} the prune ({viz.psnr_db(image, r['image']):.2f} dB)",
+                                         fontsize=8)  # fmt: skip
+                _image_axes(axes[row, col], colour)
+            points = viz.draw_centres(axes[row, 2], r, norm, size=2.0)
+            axes[row, 2].set_title(f"{name}: {int(r['n_pruned']):,} of {int(r['n_before']):,} pruned", fontsize=8)
+            _image_axes(axes[row, 2], colour)
+        if points is not None:
+            fig.colorbar(points, ax=axes[1:, 2].tolist(), label="coverage $C_i$ of a pruned Gaussian [px]",
+                         shrink=0.6)  # fmt: skip
+        where = ", " + panel.title.replace("\n", " ") if panel.title else ""
+        fig_title(fig, f"What each strategy pruned, {dataset_name(dataset)} {seq}{where} (PSNR against the keyframe)")
+        token = f"_{file_token(panel.title)}" if panel.title else ""
+        written.append(_save(fig, out / f"pruned_{file_token(dataset)}_{file_token(seq)}{token}_kf{kf:03d}.png"))
+    return written
 
 def _dataset_average(runs: pd.DataFrame, metric: str) -> tuple[float | None, int]:
     """Mean over sequences of the seed means of ok runs (the tables' Avg), and how many
@@ -352,53 +517,66 @@ def _per_seed_average(runs: pd.DataFrame, metric: str) -> pd.Series:
 
 def plot_ratio(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
     """Fig. 3a: ATE and PSNR against keep ratio, mean ± seed std, for each preset in which some
-    strategy ran at two or more ratios. Strategies run at one ratio are a point at that ratio
-    (pocket at 0.4 beside the area sweep); a baseline without one is a dashed reference."""
+    strategy ran at two or more ratios (one row of panels per such preset). A strategy swept over
+    ratios is a line with a band, one run at a single ratio a point with a bar, the unpruned
+    baseline a horizontal line with its band."""
     found = variants(runs)
-    swept = {v.slam_preset for v in found
-             if sum(u.strategy == v.strategy and u.slam_preset == v.slam_preset for u in found) > 1}  # fmt: skip
+    swept = sorted({v.slam_preset for v in found if sum(u.strategy == v.strategy and u.slam_preset == v.slam_preset
+                                                         for u in found) > 1})  # fmt: skip
     if not swept:
         return None  # no strategy ran at two keep ratios: nothing to plot against
-    several_presets = len(swept) > 1
-    looks = Looks(runs)
-    fig = Figure(figsize=(9.0, 3.8), layout="constrained")
-    axes = fig.subplots(1, 2)
+    known = sorted(set(runs["strategy"]))
+    metrics = (("ate_rmse_m", "ATE [m] (lower is better)"), ("psnr_db", "PSNR [dB] (higher is better)"))
+    fig = new_figure(2.4 + 3.6 * len(metrics), 0.8 + 2.9 * len(swept))
+    axes = fig.subplots(len(swept), len(metrics), squeeze=False, sharex=True)
     any_lost = False
-    for ax, (metric, title) in zip(axes, (("ate_rmse_m", "ATE [m]"), ("psnr_db", "PSNR [dB]")), strict=True):
-        lines: dict[tuple[str, str], list[tuple[float | None, float | None, float, bool]]] = {}
-        for variant in (v for v in found if v.slam_preset in swept):
-            vr = variant_runs(runs, variant)
-            all_lost = bool(len(vr)) and not (vr["status"] == "ok").any() and (vr["status"] == "lost").any()
-            seeds = _per_seed_average(vr, metric)
-            spread = float(seeds.std()) if len(seeds) > 1 else 0.0
-            lines.setdefault((variant.strategy, variant.slam_preset), []).append(
-                (variant.keep_ratio, _dataset_average(vr, metric)[0], spread, all_lost)
-            )
-        for (strategy, preset), points in lines.items():
-            colour = looks.colour(strategy)
-            label = method_name(strategy) + (f" [{preset}]" if several_presets else "")
-            numeric = sorted((k, v, e) for k, v, e, _ in points if k is not None and v is not None)
-            dash = "--" if preset != sorted(swept)[0] else "-"
-            if numeric:
-                style = f"{dash}o" if len(numeric) > 1 else "s"
-                ax.errorbar([k for k, _, _ in numeric], [v for _, v, _ in numeric], yerr=[e for _, _, e in numeric],
-                            fmt=style, color=colour, capsize=3, ms=5, label=label)  # fmt: skip
-            elif len(points) == 1 and points[0][1] is not None:
-                ax.axhline(points[0][1], color=colour, ls=":", lw=1.2, label=f"{label} (no pruning)")
-            lost = [k for k, _, _, is_lost in points if is_lost and k is not None]
-            if lost:
-                any_lost = True
-                ax.plot(lost, [0.02] * len(lost), "x", ms=9, mew=2, color=colour,
-                        transform=ax.get_xaxis_transform(), clip_on=False)  # fmt: skip
-        ax.set_xlabel("keep ratio (fraction of candidates kept)")
-        ax.set_ylabel(title)
-        ax.grid(alpha=0.3)
-    handles = axes[0].get_legend_handles_labels()[0]
-    handles.append(_style_key("bars: ± std over seeds; square: one ratio", ls="none", marker="s"))
+    handles: list = []
+    for r, preset in enumerate(swept):
+        mine = [v for v in found if v.slam_preset == preset]
+        for c, (metric, title) in enumerate(metrics):
+            ax = axes[r, c]
+            by_strategy: dict[str, list[tuple[float | None, float | None, float, bool]]] = {}
+            for variant in mine:
+                vr = variant_runs(runs, variant)
+                all_lost = bool(len(vr)) and not (vr["status"] == "ok").any() and (vr["status"] == "lost").any()
+                seeds = _per_seed_average(vr, metric)
+                spread = float(seeds.std()) if len(seeds) > 1 else float("nan")
+                by_strategy.setdefault(variant.strategy, []).append(
+                    (variant.keep_ratio, _dataset_average(vr, metric)[0], spread, all_lost)
+                )
+            for strategy, points in by_strategy.items():
+                colour = strategy_colour(strategy, known)
+                numeric = sorted((k, v, e) for k, v, e, _ in points if k is not None and v is not None)
+                if len(numeric) > 1:
+                    x, y, e = (np.array(t, dtype=float) for t in zip(*numeric, strict=True))
+                    band(ax, x, y, e, colour)
+                elif numeric:
+                    k, v, e = numeric[0]
+                    k += DODGE * (sorted(by_strategy).index(strategy) - (len(by_strategy) - 1) / 2)
+                    ax.errorbar([k], [v], yerr=None if math.isnan(e) else [e], fmt="s", color=colour, capsize=3, ms=5)
+                elif len(points) == 1 and points[0][1] is not None:
+                    _, v, e, _ = points[0]
+                    ax.axhline(v, color=colour, ls=":", lw=1.3)
+                    if not math.isnan(e):
+                        ax.axhspan(v - e, v + e, color=colour, alpha=0.08, lw=0)
+                lost = [k for k, _, _, is_lost in points if is_lost and k is not None]
+                if lost:
+                    any_lost = True
+                    ax.plot(lost, [0.02] * len(lost), "x", ms=9, mew=2, color=colour,
+                            transform=ax.get_xaxis_transform(), clip_on=False)  # fmt: skip
+                style = ("-", "o") if len(numeric) > 1 else ("none", "s") if numeric else (":", "")
+                name = method_name(strategy) + ("" if numeric else " (no pruning)")
+                handles.append(key(name, colour, style[0], style[1]))
+            ax.set_ylabel(title)
+            ax.set_title(f"slam={preset}" if len(swept) > 1 or len({v.slam_preset for v in found}) > 1 else "")
+            apply_fonts(ax)
+        for ax in axes[-1, :]:
+            ax.set_xlabel("keep ratio (fraction of the candidates kept)")
+    handles.append(Patch(color="grey", alpha=0.25, label="band / bar: ± 1 std over seeds"))
     if any_lost:
-        handles.append(_style_key("x: all seeds lost", ls="none", marker="x", mew=2))
-    axes[0].legend(handles=handles, fontsize="x-small")
-    fig.suptitle(f"Accuracy vs keep ratio, {dataset_name(dataset)} (mean over sequences)")
+        handles.append(key("x: all seeds lost", "black", "none", "x", mew=2))
+    legend_outside(fig, handles)
+    fig_title(fig, f"Accuracy vs keep ratio, {dataset_name(dataset)} (mean over sequences and seeds)")
     return _save(fig, out / f"ratio_{file_token(dataset)}.png")
 
 
@@ -412,78 +590,86 @@ def _front(points: list[tuple[float, float]], lower_is_better: bool) -> list[tup
 
 
 def plot_pareto(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
-    """Accuracy against peak memory per method (dataset averages), with the Pareto front.
+    """Accuracy against peak memory per method (dataset averages), with the Pareto front of each
+    panel: one column per preset (and keep-ratio sweep), ATE above PSNR, y shared along a row.
 
     A method measured on fewer sequences than the others is drawn hollow and kept off the
     front: its average is over easier or fewer sequences and would not be a fair point.
     """
-    looks = Looks(runs)
+    known = sorted(set(runs["strategy"]))
     n_seqs = runs["seq"].nunique()
-    points: list[tuple[Variant, float, int]] = []
+    memory: dict[Variant, tuple[float, int]] = {}
     for variant in variants(runs):
         mem, covered = _dataset_average(variant_runs(runs, variant), "peak_mem_mib")
         if mem is not None:
-            points.append((variant, mem, covered))
-    if not points:
+            memory[variant] = (mem, covered)
+    panels = [p for p in panel_groups(list(memory)) if p.variants]
+    if not panels:
         return None
-    fig = Figure(figsize=(9.5, 4.2), layout="constrained")
-    axes = fig.subplots(1, 2)
-    panels = (("ate_rmse_m", "ATE [m]", True), ("psnr_db", "PSNR [dB]", False))
-    hollow = False
+    metrics = (("ate_rmse_m", "ATE [m]\n(lower is better)", True), ("psnr_db", "PSNR [dB]\n(higher is better)", False))
+    fig = new_figure(2.2 + 3.2 * len(panels), 0.9 + 2.6 * len(metrics))
+    axes = fig.subplots(len(metrics), len(panels), squeeze=False, sharey="row")
+    hollow = fronts = False
     most_seeds = 0
-    for ax, (metric, title, lower) in zip(axes, panels, strict=True):
-        full: list[tuple[float, float]] = []
-        for variant, mem, mem_covered in points:
-            vr = variant_runs(runs, variant)
-            value, covered = _dataset_average(vr, metric)
-            if value is None:
-                continue
-            complete = min(covered, mem_covered) == n_seqs
-            colour = looks.colour(variant.strategy)
-            ax.scatter(mem, value, s=45, marker=looks.marker(variant), zorder=3, label=variant.label,
-                       color=colour if complete else "none", edgecolors=colour)  # fmt: skip
-            # the seeds behind the mean: one small point each, and +-1 sample std bars
-            seeds = pd.concat([_per_seed_average(vr, "peak_mem_mib"), _per_seed_average(vr, metric)], axis=1,
-                              keys=["mem", "value"]).dropna()  # fmt: skip
-            most_seeds = max(most_seeds, len(seeds))
-            if len(seeds) >= 2:
-                ax.scatter(seeds["mem"], seeds["value"], s=12, marker=looks.marker(variant), color=colour,
-                           alpha=0.45, zorder=2)  # fmt: skip
-                ax.errorbar(mem, value, xerr=seeds["mem"].std(), yerr=seeds["value"].std(), fmt="none", ecolor=colour,
-                            elinewidth=0.8, capsize=2, zorder=2)  # fmt: skip
-            if complete:
-                full.append((mem, value))
-            hollow = hollow or not complete
-        front = _front(full, lower)
-        if len(front) > 1:
-            ax.plot(*zip(*front, strict=True), "--", color="grey", lw=1.0, drawstyle="steps-post", zorder=2,
-                    label="dashed: Pareto front")  # fmt: skip
-            ax.legend(fontsize="x-small", loc="best")
-        ax.set_xlabel("peak memory [MiB]")
-        ax.set_ylabel(title + (" (lower is better)" if lower else " (higher is better)"))
-        ax.grid(alpha=0.3)
-    handles = axes[0].get_legend_handles_labels()[0]
-    if hollow:
-        handles.append(_style_key("hollow: not measured on every sequence", ls="none", marker="o", mfc="none"))
+    for c, panel in enumerate(panels):
+        for r, (metric, title, lower) in enumerate(metrics):
+            ax = axes[r, c]
+            full: list[tuple[float, float]] = []
+            for variant in panel.variants:
+                mem, mem_covered = memory[variant]
+                vr = variant_runs(runs, variant)
+                value, covered = _dataset_average(vr, metric)
+                if value is None:
+                    continue
+                complete = min(covered, mem_covered) == n_seqs
+                colour = strategy_colour(variant.strategy, known)
+                _, marker = ratio_style(variant, panel)
+                seeds = pd.concat([_per_seed_average(vr, "peak_mem_mib"), _per_seed_average(vr, metric)], axis=1,
+                                  keys=["mem", "value"]).dropna()  # fmt: skip
+                most_seeds = max(most_seeds, len(seeds))
+                if len(seeds) >= 2:
+                    ax.errorbar(mem, value, xerr=seeds["mem"].std(), yerr=seeds["value"].std(), fmt="none",
+                                ecolor=colour, elinewidth=1.0, capsize=2, zorder=2)  # fmt: skip
+                ax.scatter(mem, value, s=40, marker=marker, zorder=3, color=colour if complete else "white",
+                           edgecolors=colour, linewidths=1.2)  # fmt: skip
+                if complete:
+                    full.append((mem, value))
+                hollow = hollow or not complete
+            front = _front(full, lower)
+            if len(front) > 1:
+                fronts = True
+                ax.plot(*zip(*front, strict=True), "--", color="grey", lw=1.0, drawstyle="steps-post", zorder=1)
+            apply_fonts(ax)
+            if c == 0:
+                ax.set_ylabel(title)
+        axes[0, c].set_title(panel.title or dataset_name(dataset))
+        axes[-1, c].set_xlabel("peak memory [MiB]")
+    handles = strategy_keys(panels, known)
+    if fronts:
+        handles.append(key("dashed: Pareto front of the panel", "grey", "--"))
     if most_seeds >= 2:
-        handles.append(_style_key("small: one seed each; bars: ±1 std over seeds", ls="none", marker="o", ms=3))
-    axes[0].legend(handles=handles, fontsize="x-small")
-    seeds = "" if most_seeds >= 2 else "; 1 seed: no noise estimate"
-    fig.suptitle(f"Accuracy vs peak memory, {dataset_name(dataset)} (mean over sequences{seeds})", fontsize="medium")
+        handles.append(key("bars: ± 1 std over seeds", "grey", "-", "|"))
+    if hollow:
+        handles.append(key("hollow: not measured on every sequence", "black", "none", "o", mfc="white"))
+    legend_outside(fig, handles)
+    seeds = f"mean of {most_seeds} seeds" if most_seeds >= 2 else "1 seed: no noise estimate"
+    fig_title(fig, f"Accuracy vs peak memory, {dataset_name(dataset)} (mean over sequences, {seeds})")
     return _save(fig, out / f"pareto_{file_token(dataset)}.png")
 
 
 def make_plots(
-    runs: pd.DataFrame, out: Path, warn: Warn, formats: tuple[str, ...] = ("png",), dpi: int = DPI
+    runs: pd.DataFrame, out: Path, warn: Warn, formats: tuple[str, ...] = ("png",), dpi: int = DPI,
+    keyframes: dict[str, pd.DataFrame] | None = None,
 ) -> list[Path]:
-    """Every figure the runs support, in each of ``formats``; finished runs only."""
+    """Every figure the runs support, in each of ``formats``; finished runs only. ``keyframes``
+    (run path -> its keyframes.csv rows) stands in for run dirs that are gone (``redraw``)."""
     bad = [f for f in formats if f not in FORMATS]
     if bad or not formats:
         raise ReportError(f"expected figure formats among {', '.join(FORMATS)}, found {', '.join(formats) or '(none)'}")
     if dpi <= 0:
         raise ReportError(f"expected a positive dpi, found {dpi}")
     previous = dict(_output)
-    _output.update(formats=tuple(formats), dpi=int(dpi))
+    _output.update(formats=tuple(formats), dpi=int(dpi), keyframes=keyframes or {})
     try:
         first = _make_plots(runs, out, warn)
     finally:
@@ -497,9 +683,11 @@ def _make_plots(runs: pd.DataFrame, out: Path, warn: Warn) -> list[Path]:
     for dataset in sorted(set(done["dataset"])):
         ds = done[done["dataset"] == dataset]
         for seq in sorted(set(ds["seq"]), key=lambda s: sequence_sort_key(dataset, s)):
-            written.append(plot_memory_per_keyframe(ds, dataset, seq, out, warn))
+            for stem, title, rows in PER_KEYFRAME:
+                written.append(plot_per_keyframe(ds, dataset, seq, out, warn, stem, title, rows))
             written.append(plot_density(ds, dataset, seq, out, warn))
             written.append(plot_trajectory(ds, dataset, seq, out, warn))
+            written += plot_pruned(ds, dataset, seq, out, warn)
         written.append(plot_ratio(ds, dataset, out))
         written.append(plot_pareto(ds, dataset, out))
     return [p for p in written if p is not None]

@@ -1,0 +1,172 @@
+"""One visual language for every figure the harness draws (report and per-run).
+
+- A strategy has one colour everywhere (``strategy_colour``): colour-blind-safe Okabe-Ito hues,
+  the unpruned baseline in black. A backend preset is a panel (``panel_groups``), never a colour;
+  a keep ratio within one strategy is a line style and marker (``ratio_style``).
+- At most ``MAX_SERIES`` series per panel: variants are split into small multiples, one panel per
+  preset, and a strategy swept over keep ratios gets a panel of its own beside the baseline.
+- One y axis per panel (no twin axes: a second quantity gets its own row of panels), y shared
+  along a row where the row shows one quantity.
+- Legends go outside the data (``legend_outside``); seeds are a band, mean ± sample std (``band``).
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+
+from bench.report.names import STRATEGY_ORDER, method_name
+from bench.report.tables import Variant
+
+MAX_SERIES = 7
+BASELINE = "none"
+# Okabe & Ito (2008): distinguishable with the common colour-vision deficiencies and in grey print
+COLOURS: dict[str, str] = {
+    "none": "#000000",  # black: the reference every other line is read against
+    "pocket": "#D55E00",  # vermillion
+    "area": "#E69F00",  # orange: pocket's ablation, a neighbour hue
+    "opacity": "#0072B2",  # blue
+    "gradient": "#009E73",  # bluish green
+    "mask": "#CC79A7",  # reddish purple
+}
+EXTRA_COLOURS: tuple[str, ...] = ("#56B4E9", "#F0E442", "#8C564B", "#7F7F7F")
+RATIO_STYLES: tuple[tuple[str | tuple, str], ...] = (
+    ("-", "o"), ("--", "s"), (":", "^"), ("-.", "D"), ((0, (5, 1)), "v"),
+)  # fmt: skip
+FONT = {"axes.titlesize": 10, "axes.labelsize": 9, "xtick.labelsize": 8, "ytick.labelsize": 8, "legend.fontsize": 8}
+
+
+def strategy_colour(strategy: str, known: Sequence[str] = ()) -> str:
+    """The strategy's colour: fixed for the built-ins, by sorted name for third-party ones."""
+    if strategy in COLOURS:
+        return COLOURS[strategy]
+    extra = sorted(s for s in set(known) | {strategy} if s not in COLOURS)
+    return EXTRA_COLOURS[extra.index(strategy) % len(EXTRA_COLOURS)]
+
+
+@dataclass(frozen=True)
+class Panel:
+    """One small multiple: a title and at most ``MAX_SERIES`` variants."""
+
+    title: str
+    variants: tuple[Variant, ...]
+    preset: str
+
+
+def _preset_title(preset: str, several: bool) -> str:
+    return f"slam={preset}" if several else ""
+
+
+def panel_groups(found: Sequence[Variant]) -> list[Panel]:
+    """Variants split into panels: per preset, the strategies at the preset's usual keep ratio; a
+    strategy run at several ratios also gets a panel of its ratios (with the baseline); a panel
+    with more than ``MAX_SERIES`` variants is cut into several."""
+    count = Counter(v.slam_preset for v in found)
+    presets = sorted(count, key=lambda p: (p != "default", -count[p], p))  # the harness's own first
+    several = len(presets) > 1
+    panels: list[Panel] = []
+    for preset in presets:
+        mine = [v for v in found if v.slam_preset == preset]
+        per_strategy = Counter(v.strategy for v in mine)
+        ratios = Counter(v.keep_ratio for v in mine if v.keep_ratio is not None)
+        usual = ratios.most_common(1)[0][0] if ratios else None
+        main = [v for v in mine if per_strategy[v.strategy] == 1 or v.keep_ratio in (usual, None)]
+        title = _preset_title(preset, several)
+        panels += _cut(title, main, preset)
+        for strategy in [s for s, n in per_strategy.items() if n > 1]:
+            swept = [v for v in mine if v.strategy == strategy]
+            base = [v for v in mine if v.strategy == BASELINE and strategy != BASELINE]
+            sweep_title = (f"{title}:\n" if title else "") + f"{method_name(strategy)} by keep ratio"
+            panels += _cut(sweep_title, base + swept, preset)
+    return panels
+
+
+def _cut(title: str, variants: list[Variant], preset: str) -> list[Panel]:
+    chunks = [variants[i : i + MAX_SERIES] for i in range(0, len(variants), MAX_SERIES)]
+    if len(chunks) == 1:
+        return [Panel(title, tuple(chunks[0]), preset)]
+    return [Panel(f"{title} ({i + 1}/{len(chunks)})", tuple(c), preset) for i, c in enumerate(chunks)]
+
+
+def ratio_style(variant: Variant, panel: Panel) -> tuple[str | tuple, str]:
+    """(line style, marker): solid and round unless the panel holds several ratios of the strategy."""
+    same = sorted(v.keep_ratio for v in panel.variants if v.strategy == variant.strategy and v.keep_ratio is not None)
+    if len(same) < 2 or variant.keep_ratio is None:
+        return RATIO_STYLES[0]
+    return RATIO_STYLES[same.index(variant.keep_ratio) % len(RATIO_STYLES)]
+
+
+def series_label(variant: Variant, panel: Panel | None = None) -> str:
+    """A legend entry: the method's name, and its keep ratio where the panel shows several."""
+    label = method_name(variant.strategy)
+    if panel is not None and sum(v.strategy == variant.strategy for v in panel.variants) > 1:
+        label += f", keep {variant.keep_ratio:g}"
+    return label
+
+
+def new_figure(width_in: float, height_in: float) -> Figure:
+    fig = Figure(figsize=(width_in, height_in), layout="constrained")
+    return fig
+
+
+def apply_fonts(ax: Axes) -> None:
+    """Sizes for a figure read at its committed size (about 100 px per inch)."""
+    ax.title.set_fontsize(FONT["axes.titlesize"])
+    ax.xaxis.label.set_fontsize(FONT["axes.labelsize"])
+    ax.yaxis.label.set_fontsize(FONT["axes.labelsize"])
+    ax.tick_params(labelsize=FONT["xtick.labelsize"])
+    ax.grid(alpha=0.3, lw=0.6)
+
+
+def band(ax: Axes, x: np.ndarray, mean: np.ndarray, std: np.ndarray | None, colour: str, ls="-", marker="o",
+         label: str | None = None, markevery: int | None = None) -> Line2D:  # fmt: skip
+    """The seeds' mean as a line, and mean ± sample std as a shaded band (where there are >= 2 seeds)."""
+    (line,) = ax.plot(x, mean, ls=ls, marker=marker, ms=3, lw=1.4, color=colour, label=label, markevery=markevery)
+    if std is not None and np.isfinite(std).any():
+        ax.fill_between(x, mean - std, mean + std, color=colour, alpha=0.18, lw=0)
+    return line
+
+
+def key(label: str, colour: str = "black", ls: str | tuple = "-", marker: str = "", **kw) -> Line2D:
+    """A legend entry that explains a colour or a style."""
+    return Line2D([], [], color=colour, ls=ls, marker=marker, ms=4, label=label, **kw)
+
+
+def legend_outside(fig: Figure, handles: list, title: str | None = None) -> None:
+    """One legend for the whole figure, to the right of every panel."""
+    seen: dict[str, object] = {}
+    for h in handles:
+        seen.setdefault(h.get_label(), h)
+    fig.legend(handles=list(seen.values()), loc="outside right upper", fontsize=FONT["legend.fontsize"],
+               title=title, title_fontsize=FONT["legend.fontsize"], frameon=False)  # fmt: skip
+
+
+def fig_title(fig: Figure, text: str) -> None:
+    """The figure's title, left-aligned so that it never runs into the legend on the right."""
+    fig.suptitle(text, x=0.01, ha="left", fontsize=11)
+
+
+def strategy_keys(panels: Sequence[Panel], known: Sequence[str], several_styles: bool = True) -> list[Line2D]:
+    """Legend entries: one per strategy (its colour) and one per keep-ratio style in use."""
+    handles: list[Line2D] = []
+    strategies = []
+    for panel in panels:
+        for v in panel.variants:
+            if v.strategy not in strategies:
+                strategies.append(v.strategy)
+    order = sorted(strategies, key=lambda s: (STRATEGY_ORDER.index(s) if s in STRATEGY_ORDER else 99, s))
+    for s in order:
+        handles.append(key(method_name(s), strategy_colour(s, known), marker="o"))
+    if several_styles:
+        for panel in panels:
+            for v in panel.variants:
+                ls, marker = ratio_style(v, panel)
+                if (ls, marker) != RATIO_STYLES[0] or sum(u.strategy == v.strategy for u in panel.variants) > 1:
+                    handles.append(key(series_label(v, panel), strategy_colour(v.strategy, known), ls, marker))
+    return handles
