@@ -7,8 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.report.build import redraw
 from bench.report.collect import collect
-from bench.report.plots import make_plots
+from bench.report.plots import make_plots, seed_band
+from bench.report.style import COLOURS, MAX_SERIES, panel_groups, strategy_colour
+from bench.report.tables import Variant
 
 PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -19,6 +22,7 @@ PNG = b"\x89PNG\r\n\x1a\n"
         "memory_per_keyframe_kitti_00.png",
         "memory_per_keyframe_kitti_05.png",
         "memory_per_keyframe_euroc_MH_01_easy.png",
+        "gaussians_per_keyframe_kitti_00.png",
         "ratio_kitti.png",
         "density_kitti_00.png",
         "density_euroc_MH_01_easy.png",
@@ -50,3 +54,53 @@ def test_bad_run_files_cost_a_warning_not_the_report(tmp_path: Path, make_run) -
     assert {p.name for p in written} >= {"trajectory_kitti_00.png", "memory_per_keyframe_kitti_00.png"}
     for name in ("traj_est.txt", "keyframes.csv", "density.npz"):
         assert any(name in w and "expected" in w for w in warnings), name
+
+
+def test_panels_hold_at_most_seven_series_and_split_presets_and_sweeps() -> None:
+    found = [Variant(s, 0.4, s, p) for p in ("default", "splatam") for s in ("none", "pocket", "area", "opacity")]
+    found += [Variant("area", k, "area", "splatam") for k in (0.2, 0.6, 0.8)]
+    found += [Variant(f"plugin{i}", 0.4, f"plugin{i}", "default") for i in range(5)]
+    panels = panel_groups(found)
+    assert all(len(p.variants) <= MAX_SERIES for p in panels)
+    assert {v for p in panels for v in p.variants} == set(found)  # every variant is shown
+    for panel in panels:
+        assert len({v.slam_preset for v in panel.variants}) == 1  # a preset is a panel, never mixed
+    sweep = [p for p in panels if "keep ratio" in p.title]
+    assert len(sweep) == 1 and {v.keep_ratio for v in sweep[0].variants if v.strategy == "area"} == {0.2, 0.4, 0.6, 0.8}
+    assert any(v.strategy == "none" for v in sweep[0].variants)  # the baseline beside the sweep
+
+
+def test_a_strategy_has_one_colour_whatever_else_ran() -> None:
+    assert strategy_colour("pocket") == strategy_colour("pocket", ["none", "my_prune"]) == COLOURS["pocket"]
+    assert len(set(COLOURS.values())) == len(COLOURS)
+    assert strategy_colour("a_plugin", ["a_plugin", "b_plugin"]) != strategy_colour("b_plugin", ["a_plugin", "b_plugin"])
+
+
+def test_seed_band_is_mean_and_sample_std_over_seeds(tmp_path: Path, make_run) -> None:
+    for seed, peak in ((0, 100.0), (1, 200.0)):
+        make_run(tmp_path / str(seed), strategy="none", seq="00", seed=seed, peak_mem_mib=peak)
+    runs = collect([tmp_path]).runs
+    x, mean, std, n, lost = seed_band(runs, lambda _r, kf: kf["torch_live_peak_mib"], lambda _w: None, {})
+    assert n == 2 and not lost and list(x) == [0, 5, 10, 15]
+    np.testing.assert_allclose(mean, 150.0 * np.array([0.7, 0.8, 0.9, 1.0]))
+    np.testing.assert_allclose(std, np.std([[70, 80, 90, 100], [140, 160, 180, 200]], axis=0, ddof=1))
+
+
+def test_redraw_needs_only_the_report_folder(tmp_path: Path, make_run) -> None:
+    from bench.report import make_report
+
+    for seed in (0, 1):
+        make_run(tmp_path / "sweep" / f"n{seed}", strategy="none", seq="00", seed=seed)
+        make_run(tmp_path / "sweep" / f"p{seed}", strategy="pocket", seq="00", seed=seed)
+    made = make_report([tmp_path / "sweep"], tmp_path / "report")
+    first = (tmp_path / "report" / "memory_per_keyframe_kitti_00.png").read_bytes()
+    import shutil
+
+    shutil.rmtree(tmp_path / "sweep")  # the run dirs are gone
+    (tmp_path / "report" / "memory_per_keyframe_kitti_00.png").unlink()
+    again = redraw(tmp_path / "report")
+    names = {p.name for p in again.files}
+    assert {"memory_per_keyframe_kitti_00.png", "gaussians_per_keyframe_kitti_00.png", "pareto_kitti.png"} <= names
+    assert "trajectory_kitti_00.png" not in names  # needs the run dirs
+    assert (tmp_path / "report" / "memory_per_keyframe_kitti_00.png").read_bytes() == first
+    assert len(made.runs) == len(again.runs) == 4
