@@ -433,9 +433,11 @@ def finish(cfg: RunConfig, parts: Parts, drive: Drive, out: Path, device: torch.
 
 def describe(cfg: RunConfig) -> str:
     """A run in a figure title: strategy, keep ratio and preset."""
+    from bench.report.names import method_name
+
     keys = run_keys(cfg)
-    ratio = "" if keys["keep_ratio"] is None else f" keep {keys['keep_ratio']:g}"
-    return f"{keys['strategy']}{ratio} [{keys['slam_preset']}]"
+    ratio = "" if keys["keep_ratio"] is None else f", keep {keys['keep_ratio']:g}"
+    return f"{method_name(keys['strategy'])} ({keys['strategy']}{ratio}, slam={keys['slam_preset']})"
 
 
 @torch.no_grad()

@@ -97,7 +97,7 @@ def draw(npz: Path, png: Path) -> Path:
     """One keyframe: the image, the render before and after the prune, and what was pruned."""
     r = read(npz)
     h, w = r["image"].shape[:2]
-    fig = Figure(figsize=(10.0, 2 * 5.0 * h / w + 1.2), layout="constrained")
+    fig = Figure(figsize=(10.0, 2 * 4.6 * h / w + 0.8), layout="constrained")
     axes = fig.subplots(2, 2)
     before_db, after_db = psnr_db(r["before"], r["image"]), psnr_db(r["after"], r["image"])
     panels = (("keyframe image", r["image"]), (f"render before the prune ({before_db:.2f} dB)", r["before"]),

@@ -438,6 +438,14 @@ def _pruned_records(run_dir: Path, warn: Warn) -> dict[int, Path]:
     return found
 
 
+PRUNED_NOTE = (
+    "One row per method (lowest seed; frame colour = method): its render of this keyframe\n"
+    "before and after the prune, and the centres of the Gaussians it pruned, coloured\n"
+    "by their coverage C_i (one log scale for all rows). Every map differs: each method\n"
+    "pruned and re-seeded differently on the keyframes before this one."
+)
+
+
 def plot_pruned(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn) -> list[Path]:
     """What each strategy removed on one keyframe (runs with ``viz.pruning=true``): one figure per
     preset, one row per strategy (lowest seed): its render before and after the prune, and the
@@ -465,27 +473,31 @@ def plot_pruned(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: War
         h, w = data[0][1]["image"].shape[:2]
         norm = viz.coverage_norm([r["coverage"] for _, r in data])
         panel_w = 3.0
-        fig = new_figure(1.4 + 3 * panel_w, 1.0 + (len(data) + 1) * (panel_w * h / w + 0.35))
+        fig = new_figure(1.4 + 3 * panel_w, 0.5 + (len(data) + 1) * (panel_w * h / w + 0.22))
         axes = fig.subplots(len(data) + 1, 3, squeeze=False)
         axes[0, 0].imshow(data[0][1]["image"])
         axes[0, 0].set_title(f"keyframe {kf} (frame {int(data[0][1]['frame'])})", fontsize=8)
         _image_axes(axes[0, 0], "0.5")
         for ax in axes[0, 1:]:
             ax.set_axis_off()
+        note = axes[0, 1].text(0.0, 0.5, PRUNED_NOTE, transform=axes[0, 1].transAxes, va="center", ha="left",
+                               fontsize=8)  # fmt: skip
+        note.set_in_layout(False)  # the text may run over the empty panel beside it
         points = None
         for row, (variant, r) in enumerate(data, start=1):
             colour = strategy_colour(variant.strategy, known)
             name = series_label(variant, panel)
             for col, (image, when) in enumerate(((r["before"], "before"), (r["after"], "after"))):
                 axes[row, col].imshow(image)
-                axes[row, col].set_title(f"{name}: render {when} the prune ({viz.psnr_db(image, r['image']):.2f} dB)",
+                axes[row, col].set_title(f"render {when} the prune ({viz.psnr_db(image, r['image']):.2f} dB)",
                                          fontsize=8)  # fmt: skip
                 _image_axes(axes[row, col], colour)
             points = viz.draw_centres(axes[row, 2], r, norm, size=2.0)
-            axes[row, 2].set_title(f"{name}: {int(r['n_pruned']):,} of {int(r['n_before']):,} pruned", fontsize=8)
+            axes[row, 2].set_title(f"{int(r['n_pruned']):,} of {int(r['n_before']):,} Gaussians pruned", fontsize=8)
+            axes[row, 0].set_ylabel(name.replace(" (", "\n("), fontsize=8)
             _image_axes(axes[row, 2], colour)
         if points is not None:
-            fig.colorbar(points, ax=axes[1:, 2].tolist(), label="coverage $C_i$ of a pruned Gaussian [px]",
+            fig.colorbar(points, ax=axes[1:, 2].tolist(), label="coverage $C_i$ [px]",
                          shrink=0.6)  # fmt: skip
         where = ", " + panel.title.replace("\n", " ") if panel.title else ""
         fig_title(fig, f"What each strategy pruned, {dataset_name(dataset)} {seq}{where} (PSNR against the keyframe)")
