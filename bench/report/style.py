@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import textwrap
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -111,8 +112,8 @@ def series_label(variant: Variant, panel: Panel | None = None) -> str:
 
 
 def new_figure(width_in: float, height_in: float) -> Figure:
-    fig = Figure(figsize=(width_in, height_in), layout="constrained")
-    return fig
+    """A figure with room for the legend beside its panels (at least 6.2 in wide)."""
+    return Figure(figsize=(max(6.2, width_in), height_in), layout="constrained")
 
 
 def apply_fonts(ax: Axes) -> None:
@@ -148,8 +149,11 @@ def legend_outside(fig: Figure, handles: list, title: str | None = None) -> None
 
 
 def fig_title(fig: Figure, text: str) -> None:
-    """The figure's title, left-aligned so that it never runs into the legend on the right."""
-    fig.suptitle(text, x=0.01, ha="left", fontsize=11)
+    """The figure's title, left-aligned and wrapped to the figure's width, so that it never runs
+    into the legend on the right."""
+    # about 9.5 characters per inch at 11 pt, over the width left of the legend (about 2.7 in)
+    width_chars = max(24, int((fig.get_figwidth() - 2.7) * 9.5))
+    fig.suptitle(textwrap.fill(text, width_chars), x=0.01, ha="left", fontsize=11)
 
 
 def strategy_keys(panels: Sequence[Panel], known: Sequence[str], several_styles: bool = True) -> list[Line2D]:
