@@ -22,7 +22,7 @@ from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
-from matplotlib.ticker import FormatStrFormatter
+from matplotlib.ticker import FormatStrFormatter, NullFormatter
 
 from bench import schema, viz
 from bench.errors import MetricError, ReportError
@@ -293,7 +293,8 @@ def plot_trajectory(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn:
     axes_idx = sorted(np.argsort(np.ptp(extent_source, axis=0))[-2:])
     names = "xyz"
     span = np.ptp(extent_source[:, axes_idx], axis=0) + 1e-9
-    aspect = float(np.clip(span[1] / span[0], 0.35, 2.5))
+    to_scale = 0.25 <= span[1] / span[0] <= 4.0  # a near-straight drive at one scale is a line
+    aspect = float(np.clip(span[1] / span[0], 0.35, 2.5)) if to_scale else 1.0
     ncols = min(4, len(drawn))
     nrows = math.ceil(len(drawn) / ncols)
     fig = new_figure(2.2 + 3.3 * ncols, 0.9 + nrows * 3.3 * aspect + 0.3)
@@ -313,11 +314,11 @@ def plot_trajectory(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn:
         apply_fonts(ax)
     everything = np.vstack([p for _, paths in drawn for _, p, _ in paths] + ([gt] if gt is not None else []))
     lo, hi = everything[:, axes_idx].min(axis=0), everything[:, axes_idx].max(axis=0)
-    pad = 0.05 * float(max(hi - lo)) + 1e-6
-    axes[0, 0].set_xlim(lo[0] - pad, hi[0] + pad)  # shared by every panel
-    axes[0, 0].set_ylim(lo[1] - pad, hi[1] + pad)
+    pad = 0.05 * (np.full(2, float(max(hi - lo))) if to_scale else hi - lo) + 1e-6
+    axes[0, 0].set_xlim(lo[0] - pad[0], hi[0] + pad[0])  # shared by every panel
+    axes[0, 0].set_ylim(lo[1] - pad[1], hi[1] + pad[1])
     for ax in axes.ravel()[: len(drawn)]:
-        ax.set_aspect("equal", adjustable="box")
+        ax.set_aspect("equal" if to_scale else "auto", adjustable="box")
     for ax in axes[-1, :]:
         ax.set_xlabel(f"{names[axes_idx[0]]} [m]")
     for ax in axes[:, 0]:
@@ -330,7 +331,8 @@ def plot_trajectory(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn:
         handles.append(key("x: where tracking was lost", "black", "none", "x"))
     legend_outside(fig, handles)
     seed = f"seed {min(seeds_shown)}" if len(seeds_shown) == 1 else "lowest seed of each method"
-    fig_title(fig, f"Trajectory, {dataset_name(dataset)} {seq} (top view, {seed}, aligned as for ATE)")
+    scale = "" if to_scale else "; x and y not to one scale"
+    fig_title(fig, f"Trajectory, {dataset_name(dataset)} {seq} (top view, {seed}, aligned as for ATE{scale})")
     return _save(fig, out / f"trajectory_{file_token(dataset)}_{file_token(seq)}.png")
 
 
@@ -412,16 +414,18 @@ def plot_density(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Wa
             ax.set_xlim(-0.5, counts.shape[1] - 0.5)
             ax.set_ylim(counts.shape[0] - 0.5, -0.5)
             _image_axes(ax, strategy_colour(variant.strategy, known))
-            ax.set_title(f"{series_label(variant, panel)}\n{int(counts.sum()):,} in view", fontsize=8)
+            ax.set_title(f"{series_label(variant, panel)}\n{int(counts.sum()):,} centres in view", fontsize=8)
         if panel.title:
             axes[r, 0].set_ylabel(panel.title, fontsize=8)
         for ax in axes[r, len(cells) :]:
             ax.set_axis_off()
     if mappable is not None:
         unit = "pixel" if block == 1 else f"{block}x{block} px cell"
-        bar = fig.colorbar(mappable, ax=axes.ravel().tolist(), label=f"Gaussian centres per {unit}", shrink=0.8)
+        bar = fig.colorbar(mappable, ax=axes.ravel().tolist(), shrink=0.9, aspect=12)
+        bar.set_label(f"centres per {unit}", fontsize=8)
         bar.ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
-        bar.ax.yaxis.set_minor_formatter(FormatStrFormatter("%g"))
+        bar.ax.yaxis.set_minor_formatter(NullFormatter())  # log minor labels collide on a short bar
+        bar.ax.tick_params(labelsize=8)
     fig_title(fig, f"Gaussian density at the last keyframe, {dataset_name(dataset)} {seq} (lowest seed; frame colour = "
                  "method)")  # fmt: skip
     return _save(fig, out / f"density_{file_token(dataset)}_{file_token(seq)}.png")
