@@ -73,7 +73,8 @@ def test_panels_hold_at_most_seven_series_and_split_presets_and_sweeps() -> None
 def test_a_strategy_has_one_colour_whatever_else_ran() -> None:
     assert strategy_colour("pocket") == strategy_colour("pocket", ["none", "my_prune"]) == COLOURS["pocket"]
     assert len(set(COLOURS.values())) == len(COLOURS)
-    assert strategy_colour("a_plugin", ["a_plugin", "b_plugin"]) != strategy_colour("b_plugin", ["a_plugin", "b_plugin"])
+    plugins = ["a_plugin", "b_plugin"]
+    assert strategy_colour("a_plugin", plugins) != strategy_colour("b_plugin", plugins)
 
 
 def test_seed_band_is_mean_and_sample_std_over_seeds(tmp_path: Path, make_run) -> None:
@@ -104,3 +105,23 @@ def test_redraw_needs_only_the_report_folder(tmp_path: Path, make_run) -> None:
     assert "trajectory_kitti_00.png" not in names  # needs the run dirs
     assert (tmp_path / "report" / "memory_per_keyframe_kitti_00.png").read_bytes() == first
     assert len(made.runs) == len(again.runs) == 4
+
+
+def _pruned_npz(path: Path, kf: int, n_pruned: int) -> None:
+    rng = np.random.default_rng(kf)
+    image = rng.integers(0, 255, (12, 16, 3), dtype=np.uint8)
+    np.savez_compressed(path / f"pruned_kf{kf:03d}.npz", image=image, before=image, after=image // 2,
+                        uv=rng.random((n_pruned, 2)).astype(np.float32) * 10, coverage=rng.random(n_pruned) + 0.5,
+                        n_pruned=n_pruned, n_before=100, kf=kf, frame=3 * kf, label="x")  # fmt: skip
+
+
+def test_pruned_figure_puts_strategies_on_their_last_common_keyframe(tmp_path: Path, make_run) -> None:
+    none = make_run(tmp_path / "sweep" / "0", strategy="none", seq="00")
+    pocket = make_run(tmp_path / "sweep" / "1", strategy="pocket", seq="00")
+    make_run(tmp_path / "sweep" / "2", strategy="opacity", seq="00")  # ran without viz: left out
+    for kf in (5, 10):
+        _pruned_npz(none, kf, 0)
+    for kf in (5, 10, 15):
+        _pruned_npz(pocket, kf, 7)
+    written = make_plots(collect([tmp_path / "sweep"]).runs, tmp_path / "out", lambda w: None)
+    assert [p.name for p in written if p.name.startswith("pruned_")] == ["pruned_kitti_00_kf010.png"]
