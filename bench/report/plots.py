@@ -167,7 +167,7 @@ def _peak(run: pd.Series, kf: pd.DataFrame) -> pd.Series | None:
 
 # (file stem, figure title, rows: (y label, value of one run's keyframes.csv))
 PER_KEYFRAME: tuple[tuple[str, str, tuple[tuple[str, KfValue], ...]], ...] = (
-    ("memory_per_keyframe", "Memory per keyframe window", (
+    ("memory_per_keyframe", "Memory per keyframe", (
         ("peak memory [MiB]", _peak),
         ("map state [MiB]\n(parameters, gradients, Adam)", lambda _r, kf: kf["state_mib"]),
     )),

@@ -151,8 +151,8 @@ def legend_outside(fig: Figure, handles: list, title: str | None = None) -> None
 def fig_title(fig: Figure, text: str) -> None:
     """The figure's title, left-aligned and wrapped to the figure's width, so that it never runs
     into the legend on the right."""
-    # about 9.5 characters per inch at 11 pt, over the width left of the legend (about 2.7 in)
-    width_chars = max(24, int((fig.get_figwidth() - 2.7) * 9.5))
+    # about 11 characters per inch at 11 pt, over the width left of the legend (about 2.7 in)
+    width_chars = max(24, int((fig.get_figwidth() - 2.7) * 11))
     fig.suptitle(textwrap.fill(text, width_chars), x=0.01, ha="left", fontsize=11)
 
 
