@@ -393,16 +393,18 @@ def plot_density(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Wa
             rows.append((panel, cells))
     if not rows:
         return None
-    ncols = max(len(cells) for _, cells in rows)
     h, w = rows[0][1][0][1].shape
+    # wide images (KITTI is 3.3:1) wrap a panel's methods onto lines of 3, others of 4
+    ncols = min(3 if w > 2 * h else 4, max(len(cells) for _, cells in rows))
+    lines = [(panel, cells[i : i + ncols], i == 0) for panel, cells in rows for i in range(0, len(cells), ncols)]
     block = max(1, math.ceil(max(h, w) / DENSITY_CELLS))
     pooled = {id(c): pool_counts(c[1], block) for _, cells in rows for c in cells}
-    panel_w = 2.6
-    fig = new_figure(1.2 + panel_w * ncols, 0.7 + len(rows) * (panel_w * h / w + 0.55))
-    axes = fig.subplots(len(rows), ncols, squeeze=False)
+    panel_w = 3.0 if w > 2 * h else 2.6
+    fig = new_figure(1.2 + panel_w * ncols, 0.7 + len(lines) * (panel_w * h / w + 0.5))
+    axes = fig.subplots(len(lines), ncols, squeeze=False)
     norm = LogNorm(vmin=1.0, vmax=max(2.0, max(float(p.max()) for p in pooled.values())))
     mappable = None
-    for r, (panel, cells) in enumerate(rows):
+    for r, (panel, cells, first) in enumerate(lines):
         for c, (variant, counts, image) in enumerate(cells):
             ax = axes[r, c]
             if image is not None:
@@ -415,7 +417,7 @@ def plot_density(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Wa
             ax.set_ylim(counts.shape[0] - 0.5, -0.5)
             _image_axes(ax, strategy_colour(variant.strategy, known))
             ax.set_title(f"{series_label(variant, panel)}\n{int(counts.sum()):,} centres in view", fontsize=8)
-        if panel.title:
+        if panel.title and first:
             axes[r, 0].set_ylabel(panel.title, fontsize=8)
         for ax in axes[r, len(cells) :]:
             ax.set_axis_off()
