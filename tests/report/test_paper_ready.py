@@ -89,7 +89,7 @@ def test_axis_labels_and_legends_are_human(one_seq, tmp_path):
         make_report([one_seq], tmp_path, formats=("svg",))
     svg = (tmp_path / "memory_per_keyframe_synthetic_0.svg").read_text()
     assert "live torch tensors" in svg and "[MiB]" in svg and "torch_live_peak_mib" not in svg
-    assert "dashed: map state (right axis)" in svg and "solid: peak memory (left axis)" in svg
+    assert "map state [MiB]" in svg and "right axis" not in svg  # one y axis per panel, one quantity per row
     pareto = (tmp_path / "pareto_synthetic.svg").read_text()
     assert "peak memory [MiB]" in pareto and "dashed: Pareto front" in pareto  # both points are on the front
     assert "hollow" not in pareto  # explained only when a method misses a sequence
