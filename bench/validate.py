@@ -124,6 +124,8 @@ DATASET_SETTINGS: dict[str, Spec] = {
     "fov_deg": Spec("float", 0.0, 180.0, lo_open=True),
     "supersample": Spec("int", 1),
     "fps_hz": Spec("float", 0.0, lo_open=True),
+    "route": Spec("str", choices=("straight", "grid")),
+    "route_file": Spec("path", nullable=True),
 }
 
 

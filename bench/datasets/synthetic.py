@@ -410,7 +410,7 @@ class SyntheticSequence(TimedSequence):
             self.poses = path_poses(track, n_frames, cfg.speed_m_per_frame, cfg.sway_m)
             segs = _grid_streets(self.poses[:, [0, 2], 3])
             self.streets = _street_map(segs)
-            # each street segment draws its own buildings, so a street looks the same on every drive
+            # each street segment draws its own buildings from the scene seed and its place in the grid
             boxes = [box for seg in segs for box in _along_track_boxes(
                 np.random.default_rng([seed, 11, *(int(v) + 2**20 for v in np.round(seg[0] / GRID_BLOCK_M)),
                                        int(seg[1, 0] != seg[0, 0])]), seg)]
@@ -443,6 +443,7 @@ class SyntheticSequence(TimedSequence):
             self._sky_centre = np.array([0.5 * (lo[0] + hi[0]), CAMERA_HEIGHT_M, 0.5 * (lo[1] + hi[1])])
             self._sky_radius = 0.5 * float(np.linalg.norm(hi - lo)) + SKY_RADIUS_M
         self._cache: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
+        self.slab_tests = 0  # (ray, box) pairs slab-tested so far: the cast's work, independent of the machine
 
     def load(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
         if i not in self._cache:
@@ -532,6 +533,7 @@ class SyntheticSequence(TimedSequence):
             with np.errstate(divide="ignore", invalid="ignore"):
                 t0 = (self._lo[boxes][None] - o) * inv[:, None, :]
                 t1 = (self._hi[boxes][None] - o) * inv[:, None, :]
+            self.slab_tests += t0.shape[0] * t0.shape[1]
             tmin = np.minimum(t0, t1)
             tmax = np.maximum(t0, t1)
             t_enter = np.nanmax(tmin, axis=2)
@@ -556,6 +558,7 @@ class SyntheticSequence(TimedSequence):
             with np.errstate(divide="ignore", invalid="ignore"):
                 t0 = (self._lo[b] - o) * inv[ids]  # [A, 3]
                 t1 = (self._hi[b] - o) * inv[ids]
+            self.slab_tests += ids.size
             tmin = np.minimum(t0, t1)
             tmax = np.maximum(t0, t1)
             t_enter = np.nanmax(tmin, axis=1)
