@@ -550,7 +550,7 @@ class SyntheticSequence(TimedSequence):
             return
         W = self.width
         reach = t_best * dn  # [P] distance to the nearest hit so far (inf: sky)
-        for b, dist, (r0, r1, c0, c1) in zip(boxes, dists, rects):
+        for b, dist, (r0, r1, c0, c1) in zip(boxes, dists, rects, strict=True):
             ids = (np.arange(r0, r1 + 1)[:, None] * W + np.arange(c0, c1 + 1)[None]).ravel()
             ids = ids[reach[ids] >= dist * (1 - 1e-9) - 1e-9]  # a ray with a nearer hit cannot see this box
             if not ids.size:
