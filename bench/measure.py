@@ -370,6 +370,14 @@ class MemoryProbe:
             out["cpu_rss_peak_mib"] = self._sampler.peak_bytes() / MIB
         return out
 
+    def live_mib(self) -> float | None:
+        """Bytes held now, in MiB, by the allocator the headline peak reads: CUDA's allocated bytes,
+        or torch's live CPU tensors (as counted since the probe was made; call after ``end_window``,
+        which folds the pending events in); None where neither is measured."""
+        if self._is_cuda:
+            return torch.cuda.memory_allocated(self.device) / MIB
+        return None if self._live is None else self._live.live_b / MIB
+
     def close(self) -> None:
         """Stop the profiler session / dispatch mode / sampler thread; idempotent."""
         if self._closed:

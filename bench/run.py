@@ -305,7 +305,9 @@ def drive_frames(cfg: RunConfig, parts: Parts, out: Path, record: dict[str, Any]
     drive = Drive()
     warmup = cfg.warmup_frames
     bar = Phase("frames", parts.n_frames, "frame", cfg.progress)
-    between = dict.fromkeys(("n_pruned", "n_candidates", "prune_s"), 0)  # prune.every=frame: since the last keyframe
+    # prune.every=frame: what the frames since the last keyframe pruned
+    between: dict[str, Any] = dict.fromkeys(
+        ("n_pruned", "n_candidates", "prune_s", "diag_s", *schema.PRUNE_COUNT_COLUMNS), 0)
     parts.probe.start_window()
     with open(out / schema.KEYFRAMES_FILE, "w", newline="") as fh, TumAppender(out / TRAJ_EST) as traj:
         writer = csv.DictWriter(fh, fieldnames=schema.KEYFRAME_COLUMNS)
@@ -327,7 +329,8 @@ def drive_frames(cfg: RunConfig, parts: Parts, out: Path, record: dict[str, Any]
                 drive.gt_c2w.append(frame.gt_c2w)
                 metrics["num_frames"] = i + 1
                 if not res.is_keyframe:
-                    between = {k: v + getattr(res, k) for k, v in between.items()}
+                    between = {k: v + (getattr(res, k) if hasattr(res, k) else res.diag.get(k, 0))
+                               for k, v in between.items()}
                 else:
                     row = keyframe_row(parts, res, frame.index, between)
                     between = dict.fromkeys(between, 0)
@@ -358,8 +361,10 @@ def keyframe_row(parts: Parts, res: FrameResult, frame_index: int, between: dict
     """One keyframes.csv row: closes the memory window the keyframe ends; ``between`` holds the
     pruning of the frames since the previous keyframe (``prune.every=frame``)."""
     mem = parts.probe.end_window()
+    live_mib = parts.probe.live_mib()
     system = parts.system
     state_bytes = system.map.state_bytes()
+    diag = res.diag
     return {
         "kf": res.keyframe_index,
         "frame": frame_index,
@@ -374,7 +379,31 @@ def keyframe_row(parts: Parts, res: FrameResult, frame_index: int, between: dict
         "track_s": round(res.track_s, 4),
         "map_s": round(res.map_s, 4),
         "prune_s": round(res.prune_s + between["prune_s"], 4),
+        **memory_parts(mem, live_mib, diag.get("state_map_bytes", state_bytes), state_bytes,
+                       system.keyframe_store_bytes()),
+        **{k: _round(diag.get(k)) for k in schema.PRUNE_QUARTILE_COLUMNS},
+        **{k: diag.get(k, 0) + between[k] for k in schema.PRUNE_COUNT_COLUMNS},
+        "diag_s": round(res.diag_s + between["diag_s"], 4),
     }
+
+
+def memory_parts(mem: dict[str, float | None], live_mib: float | None, state_map_bytes: int, state_end_bytes: int,
+                 keyframe_bytes: int) -> dict[str, float | None]:
+    """The window's headline peak split into parts that add up to it (keyframes.csv ``mem_*``).
+
+    The Gaussian state at its largest (after densification, mid-mapping) and the keyframe store are
+    exact byte counts. What else stays live is measured at the window's end, when every work buffer
+    is gone: live bytes minus the state and the keyframes then. The work buffers at the peak are
+    what the peak holds beyond those three. Null where the device has no live-byte count.
+    """
+    peak = next((mem.get(c) for c in (schema.PEAK_SOURCES["cuda_alloc"], schema.PEAK_SOURCES["torch_live"])
+                 if mem.get(c) is not None), None)
+    if peak is None or live_mib is None:
+        return dict.fromkeys(schema.MEMORY_PART_COLUMNS)
+    state, kfs = state_map_bytes / schema.MIB, keyframe_bytes / schema.MIB
+    other = live_mib - state_end_bytes / schema.MIB - kfs
+    return {"mem_state_mib": _round(state), "mem_keyframes_mib": _round(kfs), "mem_other_mib": _round(other),
+            "mem_work_mib": _round(peak - state - kfs - other)}
 
 
 def _sync(device: torch.device) -> None:

@@ -57,7 +57,35 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
     Field("track_s", "s", "tracking time of the keyframe's frame"),
     Field("map_s", "s", "mapping time"),
     Field("prune_s", "s", "pruning time"),
+    # the headline peak split into parts (bench/run.py:memory_parts); mem_state + mem_keyframes + mem_other +
+    # mem_work = the peak column (cuda_alloc_peak_mib on CUDA, torch_live_peak_mib on CPU), to rounding
+    Field("mem_state_mib", "MiB", "Gaussian state at its largest in the window (after densification, during "
+          "mapping): params, a gradient per param, Adam moments, strategy state; exact bytes"),
+    Field("mem_keyframes_mib", "MiB", "keyframe store: every keyframe's colour, depth and pose; exact bytes"),
+    Field("mem_other_mib", "MiB", "other tensors still live at the window's end (current frame, previous frame for "
+          "the front-end, pixel grid, ...): live bytes then, minus state and keyframes then"),
+    Field("mem_work_mib", "MiB", "transient work buffers at the peak (render outputs, rasterizer buffers, autograd "
+          "saved tensors): the peak minus the three parts above"),
+    # what pruning saw, removed, and what came back; counts over the window's prune calls, quartiles of the last
+    Field("cand_cov_q1", "px", "candidates' coverage C_i at the pruning pose, first quartile"),
+    Field("cand_cov_q2", "px", "... median"),
+    Field("cand_cov_q3", "px", "... third quartile"),
+    Field("cand_w_q1", "", "candidates' max blending weight (alpha x T) at the pruning pose, first quartile"),
+    Field("cand_w_q2", "", "... median"),
+    Field("cand_w_q3", "", "... third quartile"),
+    Field("n_redundant", "", "candidates whose max blending weight at the pruning pose is <= 0.05 (redundant)"),
+    Field("n_pruned_redundant", "", "of those, the ones the strategy pruned"),
+    Field("n_hole_px", "", "pixels the prune pushed below the densification silhouette `slam.densify_silhouette` "
+          "at the pruning pose (holes)"),
+    Field("n_reseeded_holes", "", "Gaussians this keyframe seeded in pixels the prunes since the previous "
+          "keyframe opened (their surface points, from the observed depth, projected into this view)"),
+    Field("diag_s", "s", "time spent on the pruning diagnostics above (included in `prune_s`)"),
 )
+MEMORY_PART_COLUMNS: tuple[str, ...] = ("mem_state_mib", "mem_keyframes_mib", "mem_other_mib", "mem_work_mib")
+PRUNE_COUNT_COLUMNS: tuple[str, ...] = ("n_redundant", "n_pruned_redundant", "n_hole_px", "n_reseeded_holes")
+PRUNE_QUARTILE_COLUMNS: tuple[str, ...] = (
+    "cand_cov_q1", "cand_cov_q2", "cand_cov_q3", "cand_w_q1", "cand_w_q2", "cand_w_q3",
+)  # fmt: skip
 KEYFRAME_COLUMNS: list[str] = [f.name for f in KEYFRAME_FIELDS]
 
 # The headline memory figure and where it comes from, by preference: what the device must hold at

@@ -22,6 +22,7 @@ import torch
 
 from bench.datasets.base import Frame
 from bench.errors import ConfigError, TrackingLost
+from bench.schema import PRUNE_QUARTILE_COLUMNS
 from bench.slam.frontend import FlowPnpConfig, relative_motion, to_gray_u8
 from bench.slam.gaussians import DEFAULT_LRS, GaussianMap
 from bench.slam.raster import BACKENDS, RasterOutput, rasterize
@@ -142,6 +143,12 @@ class FrameResult:
     track_s: float = 0.0
     map_s: float = 0.0
     prune_s: float = 0.0
+    # what pruning removed and what came back (keyframes.csv; bench/schema.py, _prune_diagnostics)
+    diag: dict[str, float | int | None] = field(default_factory=dict)
+    diag_s: float = 0.0  # time spent on those diagnostics (inside prune_s)
+
+
+REDUNDANT_WEIGHT = 0.05  # a candidate whose blending weight never exceeds this is redundant (reports/fidelity)
 
 
 @dataclass
@@ -196,6 +203,10 @@ class System:
         self.init_source: list[str] = []  # per tracked frame: "flow_pnp" or "velocity"
         # called after each prune with (kf_idx, w2c, render before [RasterOutput], keep [N before] bool or None)
         self.on_prune: Callable[[int, torch.Tensor, RasterOutput, torch.Tensor | None], None] | None = None
+        # world points [M, 3] (numpy, so they stay out of the measured torch memory) of the pixels the
+        # prunes since the last densification opened: the next densification counts seeds landing there
+        self._holes: list[np.ndarray] = []
+        self._reseeded = 0  # seeds of the last densification that landed in those pixels
 
     # ------------------------------------------------------------------ rendering
     def render(
@@ -235,17 +246,25 @@ class System:
             if self.prune.every == "frame" and self.keyframes:
                 # the next keyframe's index: nothing is new on a frame that added no Gaussian
                 with self._phase("pruning"):
-                    result.n_pruned, result.n_candidates = self._prune(len(self.keyframes), w2c)
+                    result.n_pruned, result.n_candidates = self._prune(len(self.keyframes), w2c, depth, result)
                 result.prune_s = time.perf_counter() - t1
         else:
             kf_idx = len(self.keyframes)
-            self.keyframes.append(_Keyframe(frame.index, rgb, depth, w2c))
+            # the store owns its images, as on a GPU (where .to() copies): on CPU ``rgb`` may alias the
+            # dataset's numpy-backed frame, which torch's allocator, and so the live-tensor peak, never sees
+            kf_rgb = rgb.clone() if rgb.data_ptr() == frame.rgb.data_ptr() else rgb
+            self.keyframes.append(_Keyframe(frame.index, kf_rgb, depth, w2c))
             with self._phase("mapping"):
                 result.n_added = self._densify(rgb, depth, w2c, kf_idx)
+                result.diag["n_reseeded_holes"] = self._reseeded
                 self._map(kf_idx)
+            # the map at its largest in the window: after densification, with Adam's moments and
+            # (as during each mapping step) a gradient for every parameter
+            result.diag["state_map_bytes"] = self.map.state_bytes() + sum(
+                p.numel() * p.element_size() for p in self.map.params.values() if p.grad is None)
             t2 = time.perf_counter()
             with self._phase("pruning"):
-                result.n_pruned, result.n_candidates = self._prune(kf_idx, w2c)
+                result.n_pruned, result.n_candidates = self._prune(kf_idx, w2c, depth, result)
             t3 = time.perf_counter()
             result.is_keyframe, result.keyframe_index = True, kf_idx
             result.map_s, result.prune_s = t2 - t1, t3 - t2
@@ -410,6 +429,7 @@ class System:
         grid = torch.zeros_like(valid)
         grid[oy::s, ox::s] = True
         sel = need & valid & grid
+        self._reseeded = self._count_in_holes(sel, depth, w2c)
         if not sel.any():
             return 0
         z = depth[sel]  # [M]
@@ -486,8 +506,10 @@ class System:
         opt.zero_grad(set_to_none=True)
 
     # ------------------------------------------------------------------ pruning
-    def _prune(self, kf_idx: int, w2c: torch.Tensor) -> tuple[int, int]:
-        """(Gaussians removed, candidates) after the strategy's keep mask at pose ``w2c``."""
+    def _prune(self, kf_idx: int, w2c: torch.Tensor, depth: torch.Tensor,
+               result: FrameResult | None = None) -> tuple[int, int]:
+        """(Gaussians removed, candidates) after the strategy's keep mask at pose ``w2c``; the
+        diagnostics of this prune go to ``result.diag`` (``depth`` [H, W]: the frame's observed depth)."""
         with torch.no_grad():
             out = self.render(w2c, stats=True)
         st = self.map.state
@@ -502,7 +524,79 @@ class System:
         n_candidates = int(candidates.sum())
         if keep is not None:
             keep = keep.to(torch.bool) | is_new  # new Gaussians are exempt whatever the strategy says
-        removed = 0 if keep is None else self.map.remove(keep)
+        n_removed = 0 if keep is None else self.map.remove(keep)
         if self.on_prune is not None:  # viz.pruning (bench/viz.py): `out` is the render before the prune
             self.on_prune(kf_idx, w2c, out, keep)
-        return removed, n_candidates
+        if result is not None:
+            t0 = time.perf_counter()
+            self._prune_diagnostics(result.diag, out, candidates, keep, n_removed, w2c, depth)
+            result.diag_s += time.perf_counter() - t0
+        return n_removed, n_candidates
+
+    # ------------------------------------------------------------------ diagnostics
+    @torch.no_grad()
+    def _prune_diagnostics(self, diag: dict, out: RasterOutput, candidates: torch.Tensor, keep: torch.Tensor | None,
+                           n_removed: int, w2c: torch.Tensor, depth: torch.Tensor) -> None:
+        """What this prune saw and did, at the pruning pose: the candidates' C_i and max blending
+        weight quartiles, the redundant candidates (weight never above REDUNDANT_WEIGHT in this view)
+        and how many of them were pruned, and the pixels the prune pushed below the densification
+        threshold (holes). Costs one extra render, only when something was removed."""
+        cand_cov = out.coverage[candidates].float()  # [C]
+        cand_w = out.max_weight[candidates].float()  # [C]
+        q = torch.tensor([0.25, 0.5, 0.75], device=cand_cov.device)
+        cov_q = torch.quantile(cand_cov, q).tolist() if cand_cov.numel() else [None] * 3
+        w_q = torch.quantile(cand_w, q).tolist() if cand_w.numel() else [None] * 3
+        diag.update(zip(PRUNE_QUARTILE_COLUMNS, [*cov_q, *w_q], strict=True))
+        redundant = candidates & (out.max_weight <= REDUNDANT_WEIGHT)  # [N] before removal
+        diag["n_redundant"] = diag.get("n_redundant", 0) + int(redundant.sum())
+        pruned_redundant = 0 if keep is None else int((redundant & ~keep).sum())
+        diag["n_pruned_redundant"] = diag.get("n_pruned_redundant", 0) + pruned_redundant
+        holes = 0
+        if n_removed:
+            after = self.render(w2c)
+            thr = self.cfg.densify_silhouette
+            opened = (out.alpha >= thr) & (after.alpha < thr)  # [H, W]
+            holes = int(opened.sum())
+            sel = opened & (depth > 0)
+            if sel.any():
+                z = depth[sel]
+                uv = self._pix[sel]
+                fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
+                p_cam = torch.stack([(uv[:, 0] - cx) / fx * z, (uv[:, 1] - cy) / fy * z, z], -1)
+                c2w = inverse(w2c)
+                self._holes.append((p_cam @ c2w[:3, :3].T + c2w[:3, 3]).cpu().numpy().astype(np.float64))
+        diag["n_hole_px"] = diag.get("n_hole_px", 0) + holes
+
+    def _count_in_holes(self, sel: torch.Tensor, depth: torch.Tensor, w2c: torch.Tensor) -> int:
+        """Seeds (``sel`` [H, W]) in pixels the prunes since the last densification opened.
+
+        The opened pixels' surface points (from their frames' observed depth) are projected into
+        this keyframe; a point counts where it is the visible surface (within 5% of this frame's
+        depth) and marks its pixel and the 8 around it (projected points of another view leave gaps).
+        """
+        if not self._holes:
+            return 0
+        pts = np.concatenate(self._holes)  # [M, 3] world
+        self._holes = []
+        w = w2c.double().cpu().numpy()
+        cam = pts @ w[:3, :3].T + w[:3, 3]
+        K = self.K.double().cpu().numpy()
+        z = cam[:, 2]
+        front = z > 1e-6
+        u = np.round(K[0, 0] * cam[front, 0] / z[front] + K[0, 2]).astype(np.int64)
+        v = np.round(K[1, 1] * cam[front, 1] / z[front] + K[1, 2]).astype(np.int64)
+        z = z[front]
+        inside = (u >= 0) & (u < self.W) & (v >= 0) & (v < self.H)
+        u, v, z = u[inside], v[inside], z[inside]
+        d = depth.cpu().numpy()
+        seen = np.abs(d[v, u] - z) < 0.05 * z
+        mask = np.zeros((self.H + 2, self.W + 2), dtype=bool)
+        for dy in (0, 1, 2):
+            for dx in (0, 1, 2):
+                mask[v[seen] + dy, u[seen] + dx] = True
+        opened = mask[1:-1, 1:-1]
+        return int((sel.cpu().numpy() & opened).sum())
+
+    def keyframe_store_bytes(self) -> int:
+        """Exact bytes of the keyframe store: every keyframe's colour, depth and pose."""
+        return int(sum(t.numel() * t.element_size() for kf in self.keyframes for t in (kf.rgb, kf.depth, kf.w2c)))
