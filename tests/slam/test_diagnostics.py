@@ -8,6 +8,7 @@ import math
 
 import pytest
 import torch
+
 from bench import schema
 from bench.cli import compose
 from bench.datasets.synthetic import open_sequence
