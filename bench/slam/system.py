@@ -31,6 +31,8 @@ from bench.strategy import MappingContext, PruneConfig, PruneContext, Strategy, 
 
 log = logging.getLogger(__name__)
 
+MAPPING_SCHEDULES = ("keyframes", "first")
+
 
 @dataclass
 class SlamConfig:
@@ -62,6 +64,10 @@ class SlamConfig:
     # "torch" reference on CUDA; both give the same images and gradients up to float32 rounding
     raster_backend: str = "auto"
     mapping_iters: int = 100  # paper: 100 per keyframe
+    # when keyframes get those iterations: "keyframes" = every keyframe (the paper's text); "first" = the
+    # first keyframe only, later keyframes only densify (and prune), as the released Pocket-SLAM code
+    # does (`if time_idx < 1` around its mapping loop; +experiment=released)
+    mapping_schedule: str = "keyframes"
     mapping_fresh_optimizer: bool = True  # new Adam moments per keyframe, as SplaTAM does
     # keyframes optimised together (current one included); None = all. Half the iterations go to the
     # current keyframe, the rest to a random other one of the window. A short window lets later
@@ -109,6 +115,9 @@ class SlamConfig:
             raise ConfigError(f"slam.densify_sigma_px: expected > 0 or null, found {self.densify_sigma_px}")
         if not 0.0 < self.init_opacity < 1.0:
             raise ConfigError(f"slam.init_opacity: expected a value in (0, 1), found {self.init_opacity}")
+        if self.mapping_schedule not in MAPPING_SCHEDULES:
+            raise ConfigError(f"slam.mapping_schedule: expected one of {', '.join(MAPPING_SCHEDULES)}, "
+                              f"found '{self.mapping_schedule}'")
         if self.tracking_mask not in ("current", "init"):
             raise ConfigError(f"slam.tracking_mask: expected 'current' or 'init', found '{self.tracking_mask}'")
         if self.raster_backend not in BACKENDS:
@@ -257,11 +266,11 @@ class System:
             with self._phase("mapping"):
                 result.n_added = self._densify(rgb, depth, w2c, kf_idx)
                 result.diag["n_reseeded_holes"] = self._reseeded
-                self._map(kf_idx)
+                mapped = self._map(kf_idx)
             # the map at its largest in the window: after densification, with Adam's moments and
             # (as during each mapping step) a gradient for every parameter
-            result.diag["state_map_bytes"] = self.map.state_bytes() + sum(
-                p.numel() * p.element_size() for p in self.map.params.values() if p.grad is None)
+            result.diag["state_map_bytes"] = self.map.state_bytes() + (sum(
+                p.numel() * p.element_size() for p in self.map.params.values() if p.grad is None) if mapped else 0)
             t2 = time.perf_counter()
             with self._phase("pruning"):
                 result.n_pruned, result.n_candidates = self._prune(kf_idx, w2c, depth, result)
@@ -453,8 +462,12 @@ class System:
         )
         return n
 
-    def _map(self, kf_idx: int) -> None:
+    def _map(self, kf_idx: int) -> int:
+        """Optimise the map over the keyframe window; the iterations run (none after the first
+        keyframe with ``mapping_schedule=first``)."""
         cfg = self.cfg
+        if cfg.mapping_schedule == "first" and kf_idx > 0:
+            return 0
         # the newest keyframes first; older ones keep the views of the early drive from being
         # overwritten by later close-ups (see mapping_window)
         window = self.keyframes[::-1][: cfg.mapping_window or len(self.keyframes)]
@@ -463,6 +476,7 @@ class System:
             return window[0] if it % 2 == 0 or len(window) == 1 else self._rng.choice(window[1:])
 
         self._optimize(kf_idx, cfg.mapping_iters, pick)
+        return cfg.mapping_iters
 
     def refine(self, iters: int, on_step: Callable[[], None] | None = None) -> None:
         """Optimise the finished map over every keyframe, sampled uniformly.
