@@ -259,9 +259,10 @@ class System:
                 result.prune_s = time.perf_counter() - t1
         else:
             kf_idx = len(self.keyframes)
-            # the store owns its images, as on a GPU (where .to() copies): on CPU ``rgb`` may alias the
-            # dataset's numpy-backed frame, which torch's allocator, and so the live-tensor peak, never sees
-            kf_rgb = rgb.clone() if rgb.data_ptr() == frame.rgb.data_ptr() else rgb
+            # the store holds its images in torch's allocator, as on a GPU (where .to() copies): on CPU
+            # ``rgb`` may be the dataset's numpy-backed frame (synthetic), a storage torch did not allocate
+            # (not resizable), which the live-tensor peak would never see
+            kf_rgb = rgb if rgb.untyped_storage().resizable() else rgb.clone()
             self.keyframes.append(_Keyframe(frame.index, kf_rgb, depth, w2c))
             with self._phase("mapping"):
                 result.n_added = self._densify(rgb, depth, w2c, kf_idx)
