@@ -41,8 +41,8 @@ VOLATILE_METRICS: frozenset[str] = frozenset({
     "torch_live_peak_mib", "cuda_alloc_peak_mib", "cuda_reserved_peak_mib", "peak_mem_mib",
 })  # fmt: skip
 VOLATILE_KEYFRAME_COLUMNS: frozenset[str] = frozenset({
-    "track_s", "map_s", "prune_s", "cpu_rss_peak_mib", "torch_live_peak_mib", "cuda_alloc_peak_mib",
-    "cuda_reserved_peak_mib",
+    "track_s", "map_s", "prune_s", "diag_s", "cpu_rss_peak_mib", "torch_live_peak_mib", "cuda_alloc_peak_mib",
+    "cuda_reserved_peak_mib", "mem_other_mib", "mem_work_mib",  # the last two: from the live and peak counts
 })  # fmt: skip
 # cuBLAS needs a fixed workspace to pick the same reduction order from call to call
 _CUBLAS_WORKSPACE = ":4096:8"

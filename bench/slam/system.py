@@ -216,6 +216,9 @@ class System:
         # prunes since the last densification opened: the next densification counts seeds landing there
         self._holes: list[np.ndarray] = []
         self._reseeded = 0  # seeds of the last densification that landed in those pixels
+        # per tracked frame, what the loss detector reads: (frame, colour L1 on confident pixels,
+        # fraction of confident pixels); a few floats per frame
+        self.track_log: list[tuple[int, float, float]] = []
 
     # ------------------------------------------------------------------ rendering
     def render(
@@ -367,6 +370,7 @@ class System:
         if not torch.isfinite(w2c).all():
             raise TrackingLost(f"tracking lost at frame {frame_index}: pose is not finite")
         sil_frac = float((out.alpha.detach() > cfg.silhouette_min).float().mean())
+        self.track_log.append((frame_index, float(color_l1), sil_frac))
         if sil_frac < cfg.lost_min_silhouette_frac:
             raise TrackingLost(
                 f"tracking lost at frame {frame_index}: silhouette collapsed to {sil_frac:.3f} "
