@@ -34,7 +34,8 @@ def load_cfg(name: str, overrides: list[str]) -> Any:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from bench.config import describe_error, register_configs
+    from bench.config import register_configs
+    from bench.typed import describe_error
 
     path = CONF_DIR / "dataset" / f"{name}.yaml"
     if not path.is_file():

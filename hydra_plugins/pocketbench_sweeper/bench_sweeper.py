@@ -81,20 +81,16 @@ class BenchSweeper(BasicSweeper):
 
 def _run_keys(config: Any, overrides: Sequence[str]) -> dict[str, Any]:
     """Best-effort run keys of a job that never composed: its overrides over the sweep's base config."""
-    given = {}
-    for o in overrides:
-        key, _, value = o.lstrip("+~").partition("=")
-        given[key] = value
-    base_strategy = OmegaConf.select(config, "strategy.name", default=None)
-    seed = given.get("seed", OmegaConf.select(config, "seed", default=None))
-    try:
-        seed = int(seed) if seed is not None else None
-    except ValueError:
-        seed = None
-    return {
-        "strategy": given.get("strategy") or base_strategy or "none",
-        "dataset": given.get("dataset") or OmegaConf.select(config, "dataset.name", default="unknown"),
+    from bench.keys import run_keys
+
+    given = dict(o.lstrip("+~").partition("=")[::2] for o in overrides)
+    keys = ("strategy.name", "dataset.name", "slam.name", "seed")
+    base = {k: OmegaConf.select(config, k, default=None) for k in keys}
+    seed = given.get("seed", base["seed"])
+    return run_keys({
+        "strategy": {"name": given.get("strategy") or base["strategy.name"]},
+        "dataset": {"name": given.get("dataset") or base["dataset.name"]},
+        "slam": {"name": given.get("slam") or base["slam.name"]},
         "seq": given.get("seq"),
-        "seed": seed,
-        "keep_ratio": None,
-    }
+        "seed": int(seed) if str(seed).isdigit() else None,
+    })

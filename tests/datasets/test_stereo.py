@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.config import as_config
+from bench.typed import as_config
 from bench.datasets import _realio as realio
 from bench.datasets.stereo import DepthCache, StereoParams, disparity_to_depth
 from bench.errors import ConfigError

@@ -1,6 +1,6 @@
 import pytest
 
-from bench.config import as_config
+from bench.typed import as_config
 from bench.errors import ConfigError
 from bench.slam.system import SlamConfig
 
