@@ -15,6 +15,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+# Hydra internals (hydra-core 1.3, hence the <1.4 pin in pyproject.toml): the basic sweeper is not
+# public API but is the sweeper this one extends, and get_overrides_dirname is how Hydra names a job's
+# dir (hydra.job.override_dirname), which a failed job's record must match
 from hydra._internal.config_loader_impl import get_overrides_dirname
 from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
 from hydra.core.override_parser.overrides_parser import OverridesParser
