@@ -1,9 +1,10 @@
 """``run(cfg) -> RunResult``: one SLAM run wired end to end, writing its run directory.
 
-The composed Hydra config is converted once, here (``bench.config.to_run_config``); everything
-below receives dataclasses. A run reads as its data flows: ``build`` opens the dataset and makes
-the strategy and the SLAM system, ``drive`` feeds it the frames and writes one ``keyframes.csv``
-row per keyframe window, ``finish`` refines, summarises memory, evaluates and plots.
+The composed Hydra config is validated and converted once (``bench.validate.validate``, which also
+builds the strategy and a given LPIPS model; the CLI's own check hands its result over); everything
+below receives dataclasses. A run reads as its data flows: ``build`` makes the SLAM system around
+the opened sequence, ``drive`` feeds it the frames and writes one ``keyframes.csv`` row per keyframe
+window, ``finish`` refines, summarises memory, evaluates and plots. Its keys come from ``bench.keys``.
 
 Everything a run learns is written as it goes: ``keyframes.csv`` rows are flushed per keyframe
 window and ``metrics.json`` is replaced atomically, so an interrupted or lost run keeps what
