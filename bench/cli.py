@@ -28,7 +28,7 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from bench.conf import CONF_DIR
+from bench.conf import CONF_DIR, group_files
 from bench.config import expected, register_configs
 from bench.errors import BenchError, ConfigError, StrategyError
 from bench.registry import unknown_name_message
@@ -64,8 +64,8 @@ def strategy_names() -> list[str]:
 
 
 def group_choices(group: str) -> set[str]:
-    """Config files shipped for ``group`` (``bench/conf/<group>/*.yaml``)."""
-    return {p.stem for p in (CONF_DIR / group).glob("*.yaml")}
+    """Config files for ``group``: ``./conf/<group>/*.yaml`` and the shipped ``bench/conf/<group>/*.yaml``."""
+    return set(group_files(group))
 
 
 def help_groups() -> str:
@@ -167,7 +167,7 @@ def composition_error(exc: Exception, overrides: list[str]) -> str:
 
     if isinstance(exc, MissingConfigException) and exc.missing_cfg_file and "/" in exc.missing_cfg_file:
         group, name = exc.missing_cfg_file.rsplit("/", 1)
-        names = sorted(exc.options or (p.stem for p in (CONF_DIR / group).glob("*.yaml")))
+        names = sorted(exc.options or group_files(group))
         return unknown_name_message(group, name, names)
     appended = re.search(r"Could not append to config\. An item is already at '([^']+)'", str(exc))
     if appended:  # +KEY=VALUE on an existing KEY
@@ -233,12 +233,13 @@ def _known_keys(parent: str, overrides: list[str]) -> str:
         return "(unknown)"
 
 
-def compose(overrides: list[str]) -> DictConfig:
+def compose(overrides: list[str], hydra: bool = False) -> DictConfig:
+    """The run config of ``overrides`` as the CLI composes it (``./conf`` first); ``hydra``: with its ``hydra`` node."""
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
 
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        return hydra_compose(config_name="config", overrides=list(overrides))
+        return hydra_compose(config_name="config", overrides=list(overrides), return_hydra_config=hydra)
 
 
 def precheck(argv: list[str]) -> Built | None:

@@ -20,7 +20,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 
 from bench import registry
-from bench.conf import CONF_DIR
+from bench.conf import group_files
 from bench.datasets import GROUP as DATASET_GROUP
 from bench.datasets import schema
 from bench.errors import StrategyError
@@ -146,7 +146,7 @@ def register_configs() -> list[str]:
     cs.store(name="base_config", node=RunConfig)
     for name, cls in dataset_schemas().items():
         cs.store(group="schema/dataset", name=name, node=cls)
-    shipped = {p.stem for p in (CONF_DIR / "strategy").glob("*.yaml")}
+    shipped = set(group_files("strategy"))  # ./conf/strategy/ included
     added = []
     for name in registry.available(STRATEGY_GROUP):
         try:

@@ -30,6 +30,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from bench import provenance, schema
+from bench.conf import config_files
 from bench.config import RunConfig
 from bench.datasets import Sequence, open_sequence
 from bench.determinism import repeatable
@@ -145,6 +146,7 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: B
         with raise_on_signals(), repeatable(conf.seed, conf.threads, conf.determinism, device) as det:
             record["determinism"] = det
             record["provenance"] = provenance.collect(device)  # after the thread count is set
+            record["provenance"]["config_files"] = _config_files()
             status, error, metrics, stop = _execute(built, out, device, record, seq)
     except Interrupted as exc:  # outside the frame loop (build, refinement, evaluation): keep what is there
         n_done = record["metrics"].get("num_frames", 0)
@@ -163,6 +165,13 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: B
     if stop is not None:
         raise Interrupted(stop.signum, f"{error}; partial results in {out}")
     return RunResult(status, out, metrics, error)
+
+
+def _config_files() -> dict[str, str] | None:
+    """The file each group choice came from (a user's ./conf or the package), when Hydra composed the run."""
+    from hydra.core.hydra_config import HydraConfig
+
+    return config_files(HydraConfig.get().runtime.choices) if HydraConfig.initialized() else None
 
 
 def _previous(out: Path) -> dict[str, Any] | None:

@@ -63,6 +63,9 @@ class EurocConfig(StereoConfig, realio.GroundTruthPolicy):
     stereo: StereoParams = field(default_factory=lambda: StereoParams(num_disparities=64))
 
 
+SCHEMA = EurocConfig  # the dataset's typed settings, found through its entry point (bench.datasets.schema)
+
+
 def resolve_seq(seq: str) -> str:
     """Folder name for ``seq``: 'MH01', 'mh_01', 'V101' -> official names; others unchanged."""
     key = re.sub(r"[^A-Za-z0-9]", "", seq).upper()
@@ -221,9 +224,6 @@ def rectification(cam0: dict[str, Any], cam1: dict[str, Any], alpha: float) -> d
         for cam, R, P in ((cam0, R1, P1), (cam1, R2, P2))
     ]
     return {"R1": R1, "R2": R2, "P1": P1, "P2": P2, "maps": maps}
-
-
-SCHEMA = EurocConfig  # found through the dataset registry (bench.datasets.schema)
 
 
 def open_sequence(cfg: EurocConfig | Mapping[str, Any]) -> Sequence:

@@ -42,6 +42,9 @@ class KittiConfig(StereoConfig):
     max_depth_m: float | None = 50.0  # stereo depth beyond this is set to 0 (1 px of disparity ~ 8 m at 50 m)
 
 
+SCHEMA = KittiConfig  # the dataset's typed settings, found through its entry point (bench.datasets.schema)
+
+
 def normalize_seq(seq: Any) -> str:
     """'6' / 6 / '06' -> '06'; non-numeric names pass through unchanged."""
     text = str(seq).strip()
@@ -193,9 +196,6 @@ def _choose_pair(seq_dir: Path, seq: str, mode: str, sequences_dir: Path) -> str
 
 def _list_pngs(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png")
-
-
-SCHEMA = KittiConfig  # found through the dataset registry (bench.datasets.schema)
 
 
 def open_sequence(cfg: KittiConfig | Mapping[str, Any]) -> Sequence:

@@ -141,6 +141,9 @@ class SyntheticConfig(DatasetConfig):
             raise ConfigError(f"synthetic seq: expected an integer seed, found '{self.seq}'") from None
 
 
+SCHEMA = SyntheticConfig  # the dataset's typed settings, found through its entry point (bench.datasets.schema)
+
+
 class SyntheticSequence(TimedSequence):
     """Ray-cast RGB-D frames of the driving scene; frames are rendered on demand and cached."""
 
@@ -287,9 +290,6 @@ class SyntheticSequence(TimedSequence):
             shade = np.where(ax == 1, 0.75, np.where(ax == 0, 1.0, 0.85))  # simple fixed lighting per face
             col[m] = c * shade[:, None]
         return col.reshape(H, W, 3), t_best.reshape(H, W)
-
-
-SCHEMA = SyntheticConfig  # found through the dataset registry (bench.datasets.schema)
 
 
 def open_sequence(cfg: SyntheticConfig | Mapping[str, Any]) -> SyntheticSequence:

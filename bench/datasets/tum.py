@@ -55,6 +55,9 @@ class TumConfig(RecordedConfig, realio.GroundTruthPolicy):
     intrinsics: dict[str, list[float]] = field(default_factory=lambda: dict(DEFAULT_INTRINSICS))
 
 
+SCHEMA = TumConfig  # the dataset's typed settings, found through its entry point (bench.datasets.schema)
+
+
 def resolve_seq(seq: str) -> str:
     """'fr1_desk', 'fr1/desk', 'freiburg1_desk' -> 'rgbd_dataset_freiburg1_desk'; others unchanged."""
     m = re.fullmatch(r"(?:rgbd_dataset_)?(?:fr|freiburg)([123])[_/](.+)", seq)
@@ -176,9 +179,6 @@ def _intrinsics(cfg: TumConfig, folder: str) -> np.ndarray:
     except (TypeError, ValueError):
         raise ConfigError(f"tum intrinsics.{key}: expected [fx, fy, cx, cy], found {values!r}") from None
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-
-
-SCHEMA = TumConfig  # found through the dataset registry (bench.datasets.schema)
 
 
 def open_sequence(cfg: TumConfig | Mapping[str, Any]) -> Sequence:

@@ -32,7 +32,28 @@ _OVERRIDE_DIRNAME = "${hydra:job.override_dirname}"
 
 
 class BenchSweeper(BasicSweeper):
-    """``hydra/sweeper=bench`` (the default in conf/config.yaml)."""
+    """``hydra/sweeper=bench`` (the default in conf/config.yaml).
+
+    ``+study=NAME`` (``conf/study/NAME.yaml``) sets ``study``: the sweep is then the study's sweeps,
+    one after another (``bench.study.expand``), each job in its own sweep's dir, with the rest of the
+    command line applied over the study's overrides.
+    """
+
+    def __init__(self, max_batch_size: int | None = None, params: Any = None, study: Any = None) -> None:
+        super().__init__(max_batch_size=max_batch_size, params=params)
+        self.study = study
+
+    def split_arguments(self, overrides: list[Any], max_batch_size: int | None) -> list[list[list[str]]]:
+        """The jobs of the command line (shadows Hydra's staticmethod, which ``sweep`` calls through self)."""
+        if not self.study:
+            return BasicSweeper.split_arguments(overrides, max_batch_size)
+        from bench.study import expand, parse
+
+        given = [o for o in overrides if o.key_or_group != "study"]
+        name = next((o.value() for o in overrides if o.key_or_group == "study"), "?")
+        jobs = [job for _, job in expand(parse(str(name), self.study), [o.input_line for o in given])]
+        n = max_batch_size or len(jobs) or 1
+        return [jobs[i : i + n] for i in range(0, len(jobs), n)]
 
     def sweep(self, arguments: list[str]) -> Any:
         launcher = self.launcher
