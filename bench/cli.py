@@ -49,7 +49,7 @@ log = logging.getLogger("bench")
 EXIT_CONFIG = 2  # a known error: bad setting, bad input, failed run
 _GROUPS = ("dataset", "slam", "strategy", "experiment")
 # groups a user picks from, in the order --help lists them; slam_dataset is picked by the dataset
-HELP_GROUPS: tuple[str, ...] = ("dataset", "slam", "strategy", "experiment", "hydra/launcher")
+HELP_GROUPS: tuple[str, ...] = ("dataset", "slam", "strategy", "experiment", "study", "hydra/launcher")
 # conf/hydra/launcher/submitit_local.yaml shares its name with the plugin's schema (the command is
 # hydra/launcher=submitit_local either way); Hydra 1.3 still validates it against that schema and
 # warns, at length, that it will stop doing so.
@@ -78,6 +78,8 @@ def help_groups() -> str:
         choices = group_choices(group) | (set(available()) if group == "strategy" else set())
         if group == "hydra/launcher":
             choices.add("basic")
+        if not choices:
+            continue  # study: only where ./conf/study/ holds some
         shown = [f"{c} (default)" if c == defaults.get(group) else c for c in sorted(choices)]
         lines.append(f"  {group + ':':<16}{', '.join(shown)}")
     return "\n".join(lines)
