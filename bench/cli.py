@@ -159,10 +159,10 @@ def composition_error(exc: Exception, overrides: list[str]) -> str:
     """Hydra's multi-line composition failure as our one line: key, expected, found.
 
     Typed where Hydra and OmegaConf offer it: ``MissingConfigException`` names the missing group
-    option, an OmegaConf error carries ``full_key`` and ``object_type``. Two cases have only their
-    wording to tell them apart, and depend on hydra-core 1.3 / omegaconf 2.3 internals: a ``+`` on a
-    key that exists (Hydra raises a bare ``ConfigCompositionException``), and a value that cannot
-    be converted (OmegaConf raises one ``ValidationError`` for every kind of conversion).
+    option, an OmegaConf error carries ``full_key`` and ``object_type``. What has only its wording
+    to go by depends on hydra-core 1.3 / omegaconf 2.3 messages: a ``+`` on a key that exists (Hydra
+    raises a bare ``ConfigCompositionException``), the config file a typed key failed in (``In 'X'``),
+    and the value and target type of a failed conversion (one ``ValidationError`` for every kind).
     """
     from hydra.errors import MissingConfigException
     from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBaseException

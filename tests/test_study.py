@@ -7,11 +7,8 @@ same run dirs, strategies, presets, seeds and harness settings. A mini study in 
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import math
-import sys
 from pathlib import Path
 
 import pandas as pd
@@ -110,18 +107,10 @@ def test_one_point_of_each_study_runs_at_tiny_size(name, at_repo, tmp_path, requ
 
 
 def _run_cli(args: list[str]) -> tuple[int, str]:
-    err = io.StringIO()
-    argv = sys.argv
-    sys.argv = ["bench", *args]
-    try:
-        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-            try:
-                code = cli.main()
-            except SystemExit as exc:
-                code = exc.code if isinstance(exc.code, int) else 1
-    finally:
-        sys.argv = argv
-    return code, err.getvalue()
+    from tests.test_bad_input import run_cli  # the CLI in this process, as the reliability matrix runs it
+
+    res = run_cli(args)
+    return res.code, res.stderr
 
 
 MINI = """\
