@@ -21,17 +21,22 @@ import tempfile
 import time
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
-from bench.conf import CONF_DIR
-from bench.config import describe_error, register_configs
+from bench.conf import CONF_DIR, group_files
+from bench.config import expected, register_configs
 from bench.errors import BenchError, ConfigError, StrategyError
 from bench.registry import unknown_name_message
 from bench.summary import run_table
+from bench.typed import describe_error
+
+if TYPE_CHECKING:
+    from bench.validate import Built
 
 CONF_PKG = "bench.conf"
 # Hydra finds plugins (our sweeper) only in the hydra_plugins namespace package. An editable
@@ -44,12 +49,11 @@ log = logging.getLogger("bench")
 EXIT_CONFIG = 2  # a known error: bad setting, bad input, failed run
 _GROUPS = ("dataset", "slam", "strategy", "experiment")
 # groups a user picks from, in the order --help lists them; slam_dataset is picked by the dataset
-HELP_GROUPS: tuple[str, ...] = ("dataset", "slam", "strategy", "experiment", "hydra/launcher")
+HELP_GROUPS: tuple[str, ...] = ("dataset", "slam", "strategy", "experiment", "study", "hydra/launcher")
 # conf/hydra/launcher/submitit_local.yaml shares its name with the plugin's schema (the command is
 # hydra/launcher=submitit_local either way); Hydra 1.3 still validates it against that schema and
 # warns, at length, that it will stop doing so.
 warnings.filterwarnings("ignore", message=r"(?s).*is validated against ConfigStore schema with the same name")
-register_configs()  # the schemas bench/conf/*.yaml build on, before Hydra composes anything
 
 
 def strategy_names() -> list[str]:
@@ -60,8 +64,8 @@ def strategy_names() -> list[str]:
 
 
 def group_choices(group: str) -> set[str]:
-    """Config files shipped for ``group`` (``bench/conf/<group>/*.yaml``)."""
-    return {p.stem for p in (CONF_DIR / group).glob("*.yaml")}
+    """Config files for ``group``: ``./conf/<group>/*.yaml`` and the shipped ``bench/conf/<group>/*.yaml``."""
+    return set(group_files(group))
 
 
 def help_groups() -> str:
@@ -74,59 +78,11 @@ def help_groups() -> str:
         choices = group_choices(group) | (set(available()) if group == "strategy" else set())
         if group == "hydra/launcher":
             choices.add("basic")
+        if not choices:
+            continue  # study: only where ./conf/study/ holds some
         shown = [f"{c} (default)" if c == defaults.get(group) else c for c in sorted(choices)]
         lines.append(f"  {group + ':':<16}{', '.join(shown)}")
     return "\n".join(lines)
-
-
-def strategy_defaults(name: str) -> dict:
-    """``params`` defaults of an installed strategy, read from its dataclass fields."""
-    import dataclasses
-
-    from bench.registry import load
-    from bench.strategy import GROUP
-
-    cls = load(GROUP, "strategy", name, StrategyError)
-    params = {}
-    for f in dataclasses.fields(cls):
-        if f.default is not dataclasses.MISSING:
-            value = f.default
-        elif f.default_factory is not dataclasses.MISSING:
-            value = f.default_factory()
-        else:
-            continue  # no default: the dataclass itself will ask for it
-        try:
-            OmegaConf.create({"v": value})
-        except Exception:  # a value Hydra cannot hold (a tensor, an object): left to the dataclass
-            continue
-        params[f.name] = value
-    return params
-
-
-def register_plugin_configs() -> list[str]:
-    """A ``strategy/NAME`` config-store entry for each installed strategy that ships no YAML.
-
-    Why: ``+strategy=NAME`` needs a config in the ``strategy`` group; a plugin should not need
-    Hydra knowledge (a SearchPathPlugin, package data) to be usable by name. Its defaults come
-    from its dataclass, so ``strategy.params.X=...`` overrides work as for the built-ins. Runs
-    when this module is imported, so launcher workers (joblib, submitit) that compose again see
-    the entries too. A plugin that fails to import is skipped here; naming it then gives the
-    registry's one-line error.
-    """
-    from hydra.core.config_store import ConfigStore
-
-    from bench.strategy import available
-
-    added = []
-    for name in sorted(set(available()) - group_choices("strategy")):
-        try:
-            params = strategy_defaults(name)
-        except BenchError:
-            continue
-        ConfigStore.instance().store(group="strategy", name=name, node={"name": name, "params": params},
-                                     provider="pocketbench")  # fmt: skip
-        added.append(name)
-    return added
 
 
 def register_resolvers() -> None:
@@ -200,41 +156,65 @@ def check_output_dirs(multirun: bool, job: list[str], hyd: list[str]) -> None:
 
 
 def composition_error(exc: Exception, overrides: list[str]) -> str:
-    """Hydra's multi-line composition failure as our one line: key, expected, found."""
-    from omegaconf.errors import OmegaConfBaseException
+    """Hydra's multi-line composition failure as our one line: key, expected, found.
 
+    Typed where Hydra and OmegaConf offer it: ``MissingConfigException`` names the missing group
+    option, an OmegaConf error carries ``full_key`` and ``object_type``. What has only its wording
+    to go by depends on hydra-core 1.3 / omegaconf 2.3 messages: a ``+`` on a key that exists (Hydra
+    raises a bare ``ConfigCompositionException``), the config file a typed key failed in (``In 'X'``),
+    and the value and target type of a failed conversion (one ``ValidationError`` for every kind).
+    """
+    from hydra.errors import MissingConfigException
+    from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBaseException
+
+    if isinstance(exc, MissingConfigException) and exc.missing_cfg_file and "/" in exc.missing_cfg_file:
+        group, name = exc.missing_cfg_file.rsplit("/", 1)
+        names = sorted(exc.options or group_files(group))
+        return unknown_name_message(group, name, names)
+    appended = re.search(r"Could not append to config\. An item is already at '([^']+)'", str(exc))
+    if appended:  # +KEY=VALUE on an existing KEY
+        return _append_error(appended[1], overrides)
     cause = exc.__cause__ or exc.__context__
     cause = cause if isinstance(cause, OmegaConfBaseException) else None
     text = str(exc).strip()
-    missing = re.match(r"(?:In '[^']*': )?Could not (?:find|load) '([^'/]+)/([^']+)'", text)
-    if missing:
-        group, name = missing.groups()
-        names = sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))
-        return unknown_name_message(group, name, names)
-    if cause is not None:
-        key = getattr(cause, "full_key", None) or ""
-        first = str(cause).splitlines()[0]
-        if "not in struct" in first:
-            bad = next((o for o in overrides if o.lstrip("+~").split("=", 1)[0] == key), None)
-            parent = key.rsplit(".", 1)[0] if "." in key else ""
-            known = _known_keys(parent, [o for o in overrides if o is not bad])
-            return (f"unknown setting '{key}'; {parent or 'the config'} has: {known}; "
-                    f"add a new key with +{bad.lstrip('+~') if bad else key + '=VALUE'}")
-        owner = getattr(cause, "object_type", None)
-        if "not in '" in first and owner is not None and dataclasses.is_dataclass(owner):  # a typed schema's key
+    if cause is None:
+        return text.splitlines()[0]
+    key = getattr(cause, "full_key", None) or ""
+    first = str(cause).splitlines()[0]
+    owner = getattr(cause, "object_type", None)
+    if isinstance(cause, (ConfigKeyError, ConfigAttributeError)):
+        if owner is not None and dataclasses.is_dataclass(owner):  # a typed schema's key
             where = re.match(r"In '([^']+)'", text)
             return (f"{where[1]}: " if where else "") + describe_error(cause)
-        conv = re.match(r"Value '(.*?)' (?:of type '\w+' )?could not be converted to (\w+)", first) or re.match(
-            r"Value '(.*?)' is not a valid (bool)", first)
-        if conv:
-            from bench.validate import expected
+        bad = next((o for o in overrides if o.lstrip("+~").split("=", 1)[0] == key), None)
+        parent = key.rsplit(".", 1)[0] if "." in key else ""
+        known = _known_keys(parent, [o for o in overrides if o is not bad])
+        return (f"unknown setting '{key}'; {parent or 'the config'} has: {known}; "
+                f"add a new key with +{bad.lstrip('+~') if bad else key + '=VALUE'}")
+    conv = re.match(r"Value '(.*?)' (?:of type '\w+' )?could not be converted to (\w+)", first) or re.match(
+        r"Value '(.*?)' is not a valid (bool)", first)
+    if conv:
+        kind = {"Integer": "an integer", "Float": "a number", "Boolean": "true or false", "bool": "true or false"}
+        what = expected(key) or kind.get(conv[2], conv[2])
+        named = _strategy_param(key, overrides)
+        return f"{named or key}: expected {what}, found {conv[1]!r}"
+    return f"{key}: {first[:1].lower()}{first[1:]}" if key else first
 
-            kind = {"Integer": "an integer", "Float": "a number", "Boolean": "true or false", "bool": "true or false"}
-            what = expected(key) or kind.get(conv[2], conv[2])
-            named = _strategy_param(key, overrides)
-            return f"{named or key}: expected {what}, found {conv[1]!r}"
-        return f"{key}: {first[:1].lower()}{first[1:]}" if key else first
-    return text.splitlines()[0]
+
+def _append_error(key: str, overrides: list[str]) -> str:
+    """``+KEY=VALUE`` where KEY is already a setting: the error of ``KEY=VALUE``, or how to write it."""
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    added = next((o for o in overrides if o.startswith(f"+{key}=")), None)
+    if added is None:
+        return f"{key}: expected KEY=VALUE without '+' (the setting exists), found +{key}"
+    fixed = [added[1:] if o is added else o for o in overrides]
+    try:
+        compose(fixed)
+    except (HydraException, OmegaConfBaseException) as exc:
+        return composition_error(exc, fixed)
+    return f"{key}: expected {added[1:]} without '+' (the setting exists), found {added}"
 
 
 def _strategy_param(key: str, overrides: list[str]) -> str | None:
@@ -255,19 +235,24 @@ def _known_keys(parent: str, overrides: list[str]) -> str:
         return "(unknown)"
 
 
-def compose(overrides: list[str]) -> DictConfig:
+def compose(overrides: list[str], hydra: bool = False) -> DictConfig:
+    """The run config of ``overrides`` as the CLI composes it (``./conf`` first); ``hydra``: with its ``hydra`` node."""
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
 
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        return hydra_compose(config_name="config", overrides=list(overrides))
+        return hydra_compose(config_name="config", overrides=list(overrides), return_hydra_config=hydra)
 
 
-def precheck(argv: list[str]) -> None:
-    """Everything that can be refused before Hydra runs anything: one ``BenchError`` line."""
+def precheck(argv: list[str]) -> Built | None:
+    """Everything that can be refused before Hydra runs anything: one ``BenchError`` line.
+
+    Returns the run a single-run command line builds (``bench.validate.Built``), for ``bench.run``
+    to use rather than build again; None for a sweep (each job is validated where it runs).
+    """
     parts = split_args(argv)
     if parts is None:
-        return
+        return None
     multirun, job, hyd = parts
     check_output_dirs(multirun, job, hyd)
     from hydra.core.override_parser.overrides_parser import OverridesParser
@@ -282,10 +267,10 @@ def precheck(argv: list[str]) -> None:
     except (HydraException, OmegaConfBaseException) as exc:
         raise ConfigError(composition_error(exc, job)) from None
     if multirun:
-        return  # each job is validated where it runs (our sweeper, bench.run) and recorded if bad
+        return None  # each job is validated where it runs (our sweeper, bench.run) and recorded if bad
     from bench.validate import validate
 
-    validate(cfg)
+    return validate(cfg)
 
 
 @hydra.main(version_base="1.3", config_path=f"pkg://{CONF_PKG}", config_name="config")
@@ -296,8 +281,9 @@ def _hydra_main(cfg: DictConfig) -> None:
     hc = HydraConfig.get()
     multirun = hc.mode == RunMode.MULTIRUN
     t0 = time.perf_counter()
+    built = _PRECHECKED.pop() if _PRECHECKED else None  # a single run's config, built by precheck
     try:
-        result = run(cfg, out_dir=cfg.out_dir or hc.runtime.output_dir)
+        result = run(cfg, out_dir=cfg.out_dir or hc.runtime.output_dir, built=built)
     except Interrupted as exc:  # recorded as interrupted; a stopped sweep stops too
         print(f"error: {exc}", file=sys.stderr)
         sys.exit(exc.exit_code)
@@ -334,16 +320,21 @@ def _record(hc, status: str, out_dir: object, metrics: dict, wall_s: float | Non
     print(record_job(hc.sweep.dir, job), file=sys.stderr, flush=True)
 
 
-register_plugin_configs()
+# the schemas bench/conf/*.yaml build on, and a strategy/NAME entry for each plugin that ships no YAML,
+# before Hydra composes anything; here, so launcher workers (joblib, submitit) that import this module see them
+register_configs()
+# what precheck built for the single run Hydra is about to start (bench.run checks it is the same config)
+_PRECHECKED: list[Built] = []
 
 
 def main() -> int:
     try:
         check_overrides(sys.argv[1:])
-        precheck(sys.argv[1:])
+        built = precheck(sys.argv[1:])
     except BenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_CONFIG
+    _PRECHECKED[:] = [built] if built is not None else []
     register_resolvers()
     _hydra_main()
     return 0

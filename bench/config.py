@@ -4,28 +4,35 @@ Each default is written once, in a dataclass beside the code it configures (``Sl
 ``bench/slam/system.py``, the dataset configs in ``bench/datasets/``, strategy hyperparameters in
 ``strategies/``); the run-level settings are below. The YAML files under ``bench/conf/`` pick a schema
 from the ``ConfigStore`` (``schema/dataset/NAME``, ``schema/strategy/NAME``) and only override it,
-so a mistyped key or a wrongly typed value fails at composition, not deep inside a run.
+so a mistyped key or a wrongly typed value fails at composition, not deep inside a run. Ranges and
+choices live on the same fields (``bench.typed.setting``) and are checked as each dataclass is built.
+Dataset schemas are found through the dataset registry (``bench.datasets.schema``), not imported here.
 ``bench.run`` converts the composed config once (``to_run_config``) and hands dataclasses down.
 ``register_configs`` runs when ``bench.cli`` is imported, before Hydra composes anything.
 """
 
 from __future__ import annotations
 
-import re
-from collections.abc import Mapping
-from dataclasses import dataclass, field, fields, is_dataclass
-from typing import Any, TypeVar
+from dataclasses import dataclass, field
+from typing import Any
 
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
-from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBaseException
 
-from bench.conf import CONF_DIR
-from bench.errors import ConfigError, StrategyError
+from bench import registry
+from bench.conf import group_files
+from bench.datasets import GROUP as DATASET_GROUP
+from bench.datasets import schema
+from bench.errors import StrategyError
+from bench.export import SAVE_MAPS
 from bench.slam.system import SlamConfig
+from bench.strategy import GROUP as STRATEGY_GROUP
 from bench.strategy import PruneConfig
+from bench.typed import SEED_MAX, as_config, check_rules, setting
+from bench.typed import expected as expected_in
 
-T = TypeVar("T")
+ALIGNMENTS = ("se3", "sim3", "none")
+DETERMINISM = ("strict", "fast")  # bench/determinism.py:MODES
 
 
 @dataclass
@@ -35,12 +42,16 @@ class MemoryConfig:
 
 @dataclass
 class EvalConfig:
-    every: int = 1  # evaluate PSNR/SSIM/LPIPS on every N-th tracked frame
-    ate_align: str = "se3"  # se3 | sim3 | none
-    max_diff_s: float = 0.01  # estimate <-> ground-truth timestamp association for ATE/RPE
+    every: int = setting(1, "int", lo=1)  # evaluate PSNR/SSIM/LPIPS on every N-th tracked frame
+    ate_align: str = setting("se3", "str", choices=ALIGNMENTS)
+    # estimate <-> ground-truth timestamp association for ATE/RPE
+    max_diff_s: float = setting(0.01, "float", lo=0.0, lo_open=True)
     rpe: bool = False
     lpips: bool = True  # computed only where AlexNet weights exist locally (see README)
-    lpips_weights: str | None = None
+    lpips_weights: str | None = setting(None, "path", nullable=True)
+
+    def __post_init__(self) -> None:
+        check_rules(self, "eval.")
 
 
 @dataclass
@@ -48,7 +59,10 @@ class VizConfig:
     """Pictures of what pruning removed (``bench/viz.py``); they cost renders inside the SLAM loop."""
 
     pruning: bool = False  # pruned_kfNNN.png (+ .npz for reports) at the keyframes below
-    every: int = 5  # keyframes 5, 10, 15, ... (keyframe 0 has nothing to prune)
+    every: int = setting(5, "int", lo=1)  # keyframes 5, 10, 15, ... (keyframe 0 has nothing to prune)
+
+    def __post_init__(self) -> None:
+        check_rules(self, "viz.")
 
 
 @dataclass
@@ -72,94 +86,75 @@ class RunConfig:
     viz: VizConfig = field(default_factory=VizConfig)
     # the map as a 3DGS PLY (bench/export.py): "final" writes map.ply at the end; "every_keyframe" also
     # keeps maps/kf_NNN.npz after each keyframe (python -m bench.export RUN_DIR --keyframe K)
-    save_maps: str = "final"
-    seq: str | None = None  # always a string: seq=00 and seq=10 behave alike; None = the dataset's default
-    seed: int = 0  # varies what a repeat should vary, nothing else (README: "Comparisons that hold")
-    device: str = "auto"  # auto | cpu | cuda[:N]
+    save_maps: str = setting("final", "str", choices=SAVE_MAPS)
+    # always a string: seq=00 and seq=10 behave alike; None = the dataset's default
+    seq: str | None = setting(None, "seq", nullable=True)
+    # varies what a repeat should vary, nothing else (README: "Comparisons that hold")
+    seed: int = setting(0, "int", lo=0, hi=SEED_MAX)
+    device: str = setting("auto", "str", pattern=r"auto|cpu|cuda(:\d+)?", hint="auto, cpu or cuda[:N]")
     # CPU threads (torch, numba, OpenCV): fixed, because sums split per thread round differently
-    threads: int | None = 2
+    threads: int | None = setting(2, "int", lo=1, nullable=True)
     # strict: same config + seed = same numbers; fast: torch may pick non-deterministic kernels
-    determinism: str = "strict"
-    max_frames: int | None = None  # cut the sequence short (smoke tests)
-    warmup_frames: int = 1  # frames excluded from FPS (the first frame only initialises the map)
+    determinism: str = setting("strict", "str", choices=DETERMINISM)
+    max_frames: int | None = setting(None, "int", lo=2, nullable=True)  # cut the sequence short (smoke tests)
+    # frames excluded from FPS (the first frame only initialises the map)
+    warmup_frames: int = setting(1, "int", lo=0)
     progress: bool = True  # progress bar with frame i/N, Gaussian count, fps
     resume: bool = True  # skip a run whose out dir holds finished results of the same config hash
-    out_dir: str | None = None  # None = Hydra's output dir
-    sweep_name: str = "default"  # multirun/<sweep_name>
+    out_dir: str | None = setting(None, "str", nullable=True)  # None = Hydra's output dir
+    sweep_name: str = setting("default", "str")  # multirun/<sweep_name>
 
-
-def describe_error(exc: OmegaConfBaseException) -> str:
-    """OmegaConf's multi-line message as one line that names the setting, in "expected ... found" form."""
-    key = getattr(exc, "full_key", None) or ""
-    owner = getattr(exc, "object_type", None)
-    if isinstance(exc, (ConfigKeyError, ConfigAttributeError)) and owner is not None and is_dataclass(owner):
-        known = ", ".join(f.name for f in fields(owner))
-        where = key.rpartition(".")[0] or owner.__name__
-        return f"{where}: expected a setting among {known}, found {key.rpartition('.')[2]}"
-    first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-    converted = re.match(r"Value '(.*)' of type '.*' could not be converted to (\w+)", first)
-    text = f"expected {converted[2].lower()}, found '{converted[1]}'" if converted else first[0].lower() + first[1:]
-    return f"{key}: {text}" if key else text
-
-
-def as_config(cls: type[T], cfg: T | Mapping[str, Any]) -> T:
-    """``cfg`` as an instance of the dataclass ``cls``: an instance passes, a mapping is checked against it.
-
-    The one conversion path for callers that hand a plain mapping to a typed API (tests, plugins);
-    an unknown key or a wrongly typed value is a ``ConfigError``.
-    """
-    if isinstance(cfg, cls):
-        return cfg
-    try:
-        node = OmegaConf.merge(OmegaConf.structured(cls), cfg if cfg is not None else {})
-        return OmegaConf.to_object(node)  # type: ignore[return-value]
-    except OmegaConfBaseException as exc:
-        raise ConfigError(describe_error(exc)) from None
+    def __post_init__(self) -> None:
+        check_rules(self, "")
 
 
 def to_run_config(cfg: DictConfig | RunConfig) -> RunConfig:
-    """The composed config as dataclasses: the single ``OmegaConf.to_object`` of a run."""
+    """The composed config as dataclasses: the single ``OmegaConf.to_object`` of a run, every rule checked."""
     return as_config(RunConfig, cfg)
 
 
-def plain(obj: Any) -> Any:
-    """A dataclass tree (or plain dict) as plain Python containers, e.g. for a config hash or json."""
-    if is_dataclass(obj) and not isinstance(obj, type):
-        return OmegaConf.to_container(OmegaConf.structured(obj), resolve=True)
-    if isinstance(obj, DictConfig):
-        return OmegaConf.to_container(obj, resolve=True)
-    return obj
+def expected(key: str) -> str | None:
+    """What setting ``key`` (dotted) takes, in the words of its rule; None where no schema says."""
+    group, _, name = key.partition(".")
+    if group == "dataset":
+        return next(filter(None, (expected_in(cls, name) for cls in dataset_schemas().values())), None)
+    return expected_in(RunConfig, key)
 
 
-def register_strategy(name: str, cls: type) -> None:
-    """Make ``cls`` the schema of ``strategy.params`` for ``+strategy=NAME`` (``schema/strategy/NAME``)."""
+def strategy_node(name: str, cls: type) -> DictConfig:
+    """``+strategy=NAME`` typed: the name, and ``cls`` (the strategy's dataclass) as the schema of its params."""
     node = OmegaConf.structured(StrategyConfig(name=name))
     node.params = OmegaConf.structured(cls)
-    ConfigStore.instance().store(group="schema/strategy", name=name, node=node)
+    return node
 
 
 def dataset_schemas() -> dict[str, type]:
-    """The built-in datasets' config dataclasses by name."""
-    from bench.datasets.euroc import EurocConfig
-    from bench.datasets.kitti import KittiConfig
-    from bench.datasets.synthetic import SyntheticConfig
-    from bench.datasets.tum import TumConfig
-
-    return {"synthetic": SyntheticConfig, "kitti": KittiConfig, "euroc": EurocConfig, "tum": TumConfig}
+    """The config dataclass of each installed dataset that declares one, by name (the dataset registry)."""
+    return {name: cls for name in registry.available(DATASET_GROUP) if (cls := schema(name)) is not None}
 
 
-def register_configs() -> None:
-    """Store the run schema, the built-in dataset schemas and the shipped strategies' schemas."""
-    from bench import registry
-    from bench.strategy import GROUP as STRATEGY_GROUP
+def register_configs() -> list[str]:
+    """Store the run schema, the dataset schemas and every installed strategy's schema.
 
+    The one way a strategy is registered: its dataclass becomes ``schema/strategy/NAME``, and a
+    strategy with no YAML under ``bench/conf/strategy/`` also gets ``strategy/NAME`` built on that
+    schema, so ``+strategy=NAME strategy.params.X=...`` is typed for a plugin as for a built-in.
+    A plugin that fails to import is skipped; naming it then gives the registry's one-line error.
+    Returns the names given a ``strategy/NAME`` entry.
+    """
     cs = ConfigStore.instance()
     cs.store(name="base_config", node=RunConfig)
     for name, cls in dataset_schemas().items():
         cs.store(group="schema/dataset", name=name, node=cls)
-    for path in sorted((CONF_DIR / "strategy").glob("*.yaml")):
+    shipped = set(group_files("strategy"))  # ./conf/strategy/ included
+    added = []
+    for name in registry.available(STRATEGY_GROUP):
         try:
-            cls = registry.load(STRATEGY_GROUP, "strategy", path.stem, StrategyError)
-        except StrategyError:
-            continue  # not installed: composing +strategy=NAME then fails with Hydra's own message
-        register_strategy(path.stem, cls)
+            node = strategy_node(name, registry.load(STRATEGY_GROUP, "strategy", name, StrategyError))
+        except (StrategyError, ValueError, TypeError):  # not installed, or a schema OmegaConf cannot hold
+            continue
+        cs.store(group="schema/strategy", name=name, node=node)
+        if name not in shipped:
+            cs.store(group="strategy", name=name, node=node, provider="pocketbench")
+            added.append(name)
+    return added

@@ -1,9 +1,10 @@
 """``run(cfg) -> RunResult``: one SLAM run wired end to end, writing its run directory.
 
-The composed Hydra config is converted once, here (``bench.config.to_run_config``); everything
-below receives dataclasses. A run reads as its data flows: ``build`` opens the dataset and makes
-the strategy and the SLAM system, ``drive`` feeds it the frames and writes one ``keyframes.csv``
-row per keyframe window, ``finish`` refines, summarises memory, evaluates and plots.
+The composed Hydra config is validated and converted once (``bench.validate.validate``, which also
+builds the strategy and a given LPIPS model; the CLI's own check hands its result over); everything
+below receives dataclasses. A run reads as its data flows: ``build`` makes the SLAM system around
+the opened sequence, ``drive`` feeds it the frames and writes one ``keyframes.csv`` row per keyframe
+window, ``finish`` refines, summarises memory, evaluates and plots. Its keys come from ``bench.keys``.
 
 Everything a run learns is written as it goes: ``keyframes.csv`` rows are flushed per keyframe
 window and ``metrics.json`` is replaced atomically, so an interrupted or lost run keeps what
@@ -29,30 +30,29 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from bench import provenance, schema
-from bench.config import RunConfig, plain, to_run_config
-from bench.datasets import Sequence, canonical_seq, open_sequence
+from bench.conf import config_files
+from bench.config import RunConfig
+from bench.datasets import Sequence, open_sequence
 from bench.determinism import repeatable
 from bench.errors import BenchError, ConfigError, TrackingLost
 from bench.export import MAP_FILE, save_snapshot, write_map
+from bench.keys import dataset_name, run_keys
 from bench.measure import MemoryProbe, PhaseTimer
 from bench.metrics.trajectory import TumAppender
 from bench.progress import Phase
 from bench.record import is_leftover, owner, record_failed, write_json
-from bench.resume import input_fingerprint, redo_reason, resume_key
+from bench.resume import redo_reason
 from bench.signals import Interrupted, deferred_signals, raise_on_signals
 from bench.slam.se3 import inverse
 from bench.slam.system import FrameResult, System
-from bench.strategy import CheckedStrategy, Strategy, load_strategy
-from bench.validate import validate
+from bench.strategy import Strategy
+from bench.typed import plain
+from bench.validate import Built, validate
 from bench.viz import PruneViz
 
 log = logging.getLogger(__name__)
 
 TRAJ_EST = "traj_est.txt"
-
-# keys that change how a run is shown or stored, not what it computes
-_NOT_HASHED = ("progress", "out_dir", "resume")
-
 
 @dataclass
 class RunResult:
@@ -71,50 +71,6 @@ def resolve_device(name: str) -> torch.device:
     if name != "cpu" and not name.startswith("cuda"):
         raise ConfigError(f"device: expected auto, cpu or cuda[:N], found '{name}'")
     return torch.device(name)
-
-
-def run_keys(cfg: RunConfig) -> dict[str, Any]:
-    """The ``run`` block of metrics.json: what identifies this run in a report."""
-    prunes = cfg.strategy is not None and cfg.strategy.name != "none"
-    return {
-        "strategy": cfg.strategy.name if cfg.strategy is not None else "none",
-        "dataset": dataset_name(cfg.dataset),
-        "seq": canonical_seq(dataset_name(cfg.dataset), sequence_name(cfg)),
-        "seed": cfg.seed,
-        "keep_ratio": cfg.prune.keep_ratio if prunes else None,  # no pruning, no ratio
-        "slam_preset": cfg.slam.name,  # runs of different presets never pool
-    }
-
-
-def _keys_best_effort(cfg: DictConfig) -> dict[str, Any]:
-    """Run keys of a config that failed validation: whatever of them is readable."""
-    try:
-        return run_keys(to_run_config(cfg))
-    except BenchError:  # the bad value may be one of the keys (seed=abc): record the names as given
-        strategy = cfg.strategy.name if cfg.strategy is not None else "none"
-        return {"strategy": str(strategy), "dataset": dataset_name(cfg.dataset),
-                "seq": None if cfg.seq is None else str(cfg.seq), "seed": None, "keep_ratio": None,
-                "slam_preset": str(cfg.slam.name)}
-
-
-def dataset_name(dataset: Any) -> str:
-    return str(dataset["name"] if isinstance(dataset, dict) else dataset.name)  # a plugin's plain dict, or typed
-
-
-def sequence_name(cfg: RunConfig) -> str | None:
-    """The sequence as written (``seq=``), else the dataset's own default; None if it has none."""
-    if cfg.seq is not None:
-        return str(cfg.seq)
-    ds = cfg.dataset
-    if isinstance(ds, dict):
-        return None if ds.get("seq") is None else str(ds["seq"])
-    default = ds.default_sequence() if hasattr(ds, "default_sequence") else None
-    return None if default is None else str(default)
-
-
-def _config_hash(cfg: DictConfig) -> str:
-    tree = plain(cfg)
-    return provenance.config_hash({k: v for k, v in tree.items() if k not in _NOT_HASHED})
 
 
 def _finite_or_none(x: float | None) -> float | None:
@@ -136,29 +92,31 @@ def make_out_dir(out: Path) -> None:
         raise ConfigError(f"output dir: expected a writable directory at {out}, found: {exc.strerror or exc}") from None
 
 
-def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None) -> RunResult:
+def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: Built | None = None) -> RunResult:
     """Run one (strategy, dataset, seq, seed) combination and write its run directory.
 
     Order matters: the config is validated and the data opened before anything is written, so a
     refused run leaves no half-made dir; a stored run is skipped only when config, code version
     and input files all match (``bench.resume``); once running, SIGINT/SIGTERM end the run as
     ``interrupted`` with what the frames done allow (then ``Interrupted`` is re-raised).
+    ``built``: what ``bench.validate.validate`` made of this same config already (the CLI's check
+    before Hydra starts), used as it is; a config that differs from it is validated again.
     """
     if isinstance(cfg, RunConfig):
         cfg = OmegaConf.structured(cfg)
     out = Path(out_dir or cfg.out_dir or ".").resolve()
     metrics_path = out / schema.METRICS_FILE
     try:
-        validate(cfg)
-        conf = to_run_config(cfg)  # the one conversion: below here only dataclasses travel
+        if built is None or built.tree != {k: v for k, v in plain(cfg).items() if k != "hydra"}:
+            built = validate(cfg)
     except ConfigError as exc:  # in a sweep the job is recorded; a single run was refused by the CLI already
         make_out_dir(out)
-        record_failed(out, str(exc), _keys_best_effort(cfg))
+        record_failed(out, str(exc), run_keys(cfg))
         return RunResult("failed", out, {}, str(exc))
+    conf = built.config  # below here only dataclasses travel
     make_out_dir(out)
     stored = _previous(out)
-    cfg_hash = _config_hash(cfg)
-    keys = {**run_keys(conf), "config_hash": cfg_hash}
+    keys = run_keys(conf, built.tree)
     record: dict[str, Any] = {
         "status": "running", "error": None, "run": keys, "determinism": {}, "metrics": {}, "provenance": {},
         "owner": owner(),
@@ -172,7 +130,7 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None) -> RunRe
         record.pop("owner")
         write_json(metrics_path, record)
         return RunResult("failed", out, {}, str(exc))
-    keys.update(resume_key(cfg_hash, provenance.code_version(), input_fingerprint(seq.source_files)))
+    keys = record["run"] = run_keys(conf, built.tree, seq)
     if conf.resume:
         reason = redo_reason(stored, keys)
         if reason is None:
@@ -188,7 +146,8 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None) -> RunRe
         with raise_on_signals(), repeatable(conf.seed, conf.threads, conf.determinism, device) as det:
             record["determinism"] = det
             record["provenance"] = provenance.collect(device)  # after the thread count is set
-            status, error, metrics, stop = _execute(conf, out, device, record, seq)
+            record["provenance"]["config_files"] = _config_files()
+            status, error, metrics, stop = _execute(built, out, device, record, seq)
     except Interrupted as exc:  # outside the frame loop (build, refinement, evaluation): keep what is there
         n_done = record["metrics"].get("num_frames", 0)
         status, error, metrics, stop = "interrupted", f"{exc} after {n_done} frames", record["metrics"], exc
@@ -206,6 +165,13 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None) -> RunRe
     if stop is not None:
         raise Interrupted(stop.signum, f"{error}; partial results in {out}")
     return RunResult(status, out, metrics, error)
+
+
+def _config_files() -> dict[str, str] | None:
+    """The file each group choice came from (a user's ./conf or the package), when Hydra composed the run."""
+    from hydra.core.hydra_config import HydraConfig
+
+    return config_files(HydraConfig.get().runtime.choices) if HydraConfig.initialized() else None
 
 
 def _previous(out: Path) -> dict[str, Any] | None:
@@ -229,11 +195,13 @@ def _previous(out: Path) -> dict[str, Any] | None:
     return stored
 
 
-def _execute(cfg: RunConfig, out: Path, device: torch.device, record: dict[str, Any], seq: Sequence):
+def _execute(built: Built, out: Path, device: torch.device, record: dict[str, Any], seq: Sequence):
     t_start = time.perf_counter()
-    parts = build(cfg, device, seq)
+    cfg = built.config
+    parts = build(cfg, device, seq, built)
+    parts.keys = record["run"]
     if cfg.viz.pruning:
-        parts.viz = parts.system.on_prune = PruneViz(parts.system, out, cfg.viz.every, describe(cfg))
+        parts.viz = parts.system.on_prune = PruneViz(parts.system, out, cfg.viz.every, describe(parts.keys))
     record["metrics"] = metrics = {"num_frames": 0, "num_keyframes": 0}
     drive = drive_frames(cfg, parts, out, record)
     with deferred_signals() if drive.stop is not None else contextlib.nullcontext():
@@ -256,6 +224,8 @@ class Parts:
     timer: PhaseTimer
     probe: MemoryProbe
     viz: PruneViz | None = None  # viz.pruning
+    lpips: Any = None  # what validate loaded from eval.lpips_weights; None: loaded at evaluation if at all
+    keys: dict[str, Any] = field(default_factory=dict)  # the run block of metrics.json (bench.keys)
 
 
 def open_seq(cfg: RunConfig) -> Sequence:
@@ -267,17 +237,16 @@ def open_seq(cfg: RunConfig) -> Sequence:
     return open_sequence(dataset_name(dataset), dataset)
 
 
-def build(cfg: RunConfig, device: torch.device, seq: Sequence) -> Parts:
-    """Make the strategy and the SLAM system (seeded by ``repeatable``) for the opened sequence."""
-    name = cfg.strategy.name if cfg.strategy else "none"
-    strategy = CheckedStrategy(load_strategy(name, cfg.strategy.params if cfg.strategy else None), name)
+def build(cfg: RunConfig, device: torch.device, seq: Sequence, built: Built) -> Parts:
+    """Make the SLAM system (seeded by ``repeatable``) for the opened sequence, around what validate built."""
+    strategy = built.strategy
     n_frames = min(len(seq), cfg.max_frames) if cfg.max_frames else len(seq)
     if n_frames < 2:
         raise ConfigError(f"a run needs at least 2 frames: expected >= 2, found {n_frames}")
     timer = PhaseTimer(device)
     probe = MemoryProbe(device, torch_live=cfg.memory.torch_live)  # before the SLAM state is allocated
     system = System(cfg.slam, seq.K, seq.height, seq.width, strategy, cfg.prune, device, timer=timer)
-    return Parts(seq, n_frames, strategy, system, timer, probe)
+    return Parts(seq, n_frames, strategy, system, timer, probe, lpips=built.lpips)
 
 
 # ---------------------------------------------------------------------------------------------- drive
@@ -444,14 +413,14 @@ def finish(cfg: RunConfig, parts: Parts, drive: Drive, out: Path, device: torch.
     metrics["gaussians_added_total"] = sum(w["n_added"] for w in drive.windows)
     metrics["gaussians_pruned_total"] = sum(w["n_pruned"] for w in drive.windows)
     metrics["prune_candidates_total"] = sum(w["n_candidates"] for w in drive.windows)
-    metrics["keep_ratio"] = run_keys(cfg)["keep_ratio"]  # as in run.keep_ratio: null when nothing is pruned
+    metrics["keep_ratio"] = parts.keys["keep_ratio"]  # as in run.keep_ratio: null when nothing is pruned
     est_c2w = [inverse(p.detach().double().cpu()) for p in system.poses[:n_done]]
     t_eval = time.perf_counter()
     metrics.update(_evaluate(cfg, out, parts, est_c2w, drive, device, images=not partial))
     metrics["eval_s"] = round(time.perf_counter() - t_eval, 3)  # ATE, rendering, PSNR/SSIM/LPIPS
     from bench.plots import memory_timeline
 
-    memory_timeline(out / "memory.png", drive.windows, title=f"{run_keys(cfg)['strategy']} on {parts.seq.name}")
+    memory_timeline(out / "memory.png", drive.windows, title=f"{parts.keys['strategy']} on {parts.seq.name}")
     if not partial:
         write_density(out / "density.npz", system)
     write_map(out / MAP_FILE, system.map)
@@ -460,11 +429,10 @@ def finish(cfg: RunConfig, parts: Parts, drive: Drive, out: Path, device: torch.
     return metrics
 
 
-def describe(cfg: RunConfig) -> str:
-    """A run in a figure title: strategy, keep ratio and preset."""
+def describe(keys: dict[str, Any]) -> str:
+    """A run in a figure title: strategy, keep ratio and preset, from its keys (``bench.keys.run_keys``)."""
     from bench.report.names import method_name
 
-    keys = run_keys(cfg)
     ratio = "" if keys["keep_ratio"] is None else f", keep {keys['keep_ratio']:g}"
     return f"{method_name(keys['strategy'])} ({keys['strategy']}{ratio}, slam={keys['slam_preset']})"
 
@@ -530,7 +498,8 @@ def _evaluate(
                 preds.append(parts.system.render(w2c).color.clamp(0, 1).cpu())
                 targets.append(parts.seq[i].rgb)
                 bar.update(1)
-        lp = LPIPS.from_weights(ev.lpips_weights, device=device) if ev.lpips else None
+        lp = parts.lpips or (LPIPS.from_weights(ev.lpips_weights) if ev.lpips else None)
+        lp = lp.to(device) if lp is not None else None
         img = image_metrics(preds, targets, lpips=lp)
     img.pop("num_frames", None)  # that count is res["eval_frames"]; metrics["num_frames"] is frames tracked
     res.update({k: _finite_or_none(v) if isinstance(v, float) else v for k, v in img.items()})

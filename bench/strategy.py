@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -21,6 +21,7 @@ from bench import registry
 from bench.errors import ConfigError, StrategyError
 from bench.slam.gaussians import GaussianMap, ParamSpec
 from bench.slam.raster import RasterOutput
+from bench.typed import check_rules, check_types, setting
 
 GROUP = "pocketbench.strategies"
 
@@ -85,22 +86,22 @@ class PruneConfig:
     absolute target N_tar, pruning on every frame, and g_i from the screen-space mean gradient.
     """
 
-    keep_ratio: float = 0.4  # every strategy keeps this fraction of the candidates
-    target: str = "ratio"  # ratio: N_tar = keep_ratio x candidates; absolute: N_tar = n_target
-    n_target: int | None = None  # the absolute N_tar (released code: 80,000 on KITTI, 60,000 on EuRoC)
-    every: str = "keyframe"  # keyframe: after each keyframe's mapping; frame: also after each tracked frame
+    # every strategy keeps this fraction of the candidates
+    keep_ratio: float = setting(0.4, "float", lo=0.0, hi=1.0, lo_open=True)
+    # ratio: N_tar = keep_ratio x candidates; absolute: N_tar = n_target
+    target: str = setting("ratio", "str", choices=PRUNE_TARGETS)
+    # the absolute N_tar (released code: 80,000 on KITTI, 60,000 on EuRoC)
+    n_target: int | None = setting(None, "int", lo=0, nullable=True)
+    # keyframe: after each keyframe's mapping; frame: also after each tracked frame
+    every: str = setting("keyframe", "str", choices=PRUNE_EVERY)
     # g_i, the per-Gaussian tracking gradient that pocket's tile budgets and gradient pruning read:
     # params_last = norm of dL/d(all Gaussian parameters) at the last tracking iteration of a frame;
     # means2d_all = norm of dL/d(projected 2D mean), summed over all tracking iterations and divided
     # by the iterations that saw the Gaussian (the released code's accumulator)
-    grad_source: str = "params_last"
+    grad_source: str = setting("params_last", "str", choices=GRAD_SOURCES)
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.keep_ratio <= 1.0:
-            raise ConfigError(f"prune.keep_ratio: expected a number in (0, 1], found {self.keep_ratio}")
-        for name, allowed in (("target", PRUNE_TARGETS), ("every", PRUNE_EVERY), ("grad_source", GRAD_SOURCES)):
-            if getattr(self, name) not in allowed:
-                raise ConfigError(f"prune.{name}: expected one of {', '.join(allowed)}, found '{getattr(self, name)}'")
+        check_rules(self, "prune.")
         if self.target == "absolute" and (not isinstance(self.n_target, int) or self.n_target < 0):
             raise ConfigError(
                 f"prune.n_target: expected an integer >= 0 with prune.target=absolute, found {self.n_target!r}"
@@ -179,6 +180,8 @@ class CheckedStrategy(Strategy):
     A keep mask must be a bool tensor [N] on the map's device, a render mask a floating [N], a loss
     a scalar; anything else is a ``StrategyError`` naming the strategy, raised here rather than as
     a shape error deep in the removal path. ``StrategyError``s raised inside a hook get the name too.
+    The hooks are forwarded from one table (``_RESULT_CHECKS``, below): a hook added to ``Strategy``
+    without a check there stops this module from importing.
     """
 
     def __init__(self, strategy: Strategy, name: str) -> None:
@@ -206,75 +209,110 @@ class CheckedStrategy(Strategy):
             raise self._fail(hook, f"a {kind} tensor [{n}]", f"{out.dtype} {list(out.shape)}")
         return out
 
-    def state_spec(self) -> dict[str, torch.dtype]:
-        spec = self._call("state_spec")
-        if not isinstance(spec, Mapping) or not all(isinstance(v, torch.dtype) for v in spec.values()):
-            raise self._fail("state_spec", "a dict of name -> torch.dtype", repr(spec))
-        return dict(spec)
 
-    def extra_params(self) -> dict[str, ParamSpec]:
-        params = self._call("extra_params")
-        if not isinstance(params, Mapping) or not all(isinstance(v, ParamSpec) for v in params.values()):
-            raise self._fail("extra_params", "a dict of name -> ParamSpec", repr(params))
-        return dict(params)
+def _state_spec(s: CheckedStrategy, spec: Any) -> dict[str, torch.dtype]:
+    if not isinstance(spec, Mapping) or not all(isinstance(v, torch.dtype) for v in spec.values()):
+        raise s._fail("state_spec", "a dict of name -> torch.dtype", repr(spec))
+    return dict(spec)
 
-    def on_tracking_step(self, ctx: TrackingContext) -> None:
-        self._call("on_tracking_step", ctx)
 
-    def render_mask(self, ctx: MappingContext) -> torch.Tensor | None:
-        return self._tensor("render_mask", self._call("render_mask", ctx), len(ctx.gaussians), "floating")
+def _extra_params(s: CheckedStrategy, params: Any) -> dict[str, ParamSpec]:
+    if not isinstance(params, Mapping) or not all(isinstance(v, ParamSpec) for v in params.values()):
+        raise s._fail("extra_params", "a dict of name -> ParamSpec", repr(params))
+    return dict(params)
 
-    def masked_count(self, gaussians: GaussianMap, state: dict[str, torch.Tensor]) -> int:
-        count = self._call("masked_count", gaussians, state)
-        if not is_int(count) or not 0 <= count <= len(gaussians):
-            raise self._fail("masked_count", f"an integer in [0, {len(gaussians)}]", repr(count))
-        return count
 
-    def mapping_loss(self, ctx: MappingContext) -> torch.Tensor | None:
-        loss = self._call("mapping_loss", ctx)
-        if loss is not None and (not isinstance(loss, torch.Tensor) or loss.numel() != 1):
-            found = f"{loss.dtype} {list(loss.shape)}" if isinstance(loss, torch.Tensor) else type(loss).__name__
-            raise self._fail("mapping_loss", "a scalar tensor or None", found)
-        return loss
+def _masked_count(s: CheckedStrategy, count: Any, gaussians: GaussianMap, state: dict[str, torch.Tensor]) -> int:
+    if not is_int(count) or not 0 <= count <= len(gaussians):
+        raise s._fail("masked_count", f"an integer in [0, {len(gaussians)}]", repr(count))
+    return count
 
-    def after_mapping(self, ctx: PruneContext) -> torch.Tensor | None:
-        keep = self._tensor("after_mapping", self._call("after_mapping", ctx), len(ctx.gaussians), "bool")
-        if keep is not None and keep.device != ctx.candidates.device:
-            raise self._fail("after_mapping", f"a keep mask on {ctx.candidates.device}", f"one on {keep.device}")
-        return keep
+
+def _mapping_loss(s: CheckedStrategy, loss: Any, ctx: MappingContext) -> torch.Tensor | None:
+    if loss is not None and (not isinstance(loss, torch.Tensor) or loss.numel() != 1):
+        found = f"{loss.dtype} {list(loss.shape)}" if isinstance(loss, torch.Tensor) else type(loss).__name__
+        raise s._fail("mapping_loss", "a scalar tensor or None", found)
+    return loss
+
+
+def _after_mapping(s: CheckedStrategy, keep: Any, ctx: PruneContext) -> torch.Tensor | None:
+    keep = s._tensor("after_mapping", keep, len(ctx.gaussians), "bool")
+    if keep is not None and keep.device != ctx.candidates.device:
+        raise s._fail("after_mapping", f"a keep mask on {ctx.candidates.device}", f"one on {keep.device}")
+    return keep
+
+
+# hook -> check(wrapper, what the hook returned, *the hook's arguments) -> what the core receives
+_RESULT_CHECKS: dict[str, Callable[..., Any]] = {
+    "state_spec": _state_spec,
+    "extra_params": _extra_params,
+    "on_tracking_step": lambda s, out, ctx: None,
+    "render_mask": lambda s, out, ctx: s._tensor("render_mask", out, len(ctx.gaussians), "floating"),
+    "masked_count": _masked_count,
+    "mapping_loss": _mapping_loss,
+    "after_mapping": _after_mapping,
+}
+HOOKS: tuple[str, ...] = tuple(n for n, v in vars(Strategy).items() if callable(v) and not n.startswith("_"))
+if set(HOOKS) != set(_RESULT_CHECKS):  # a hook without a check would reach the core unchecked, or not at all
+    raise TypeError(f"CheckedStrategy: hooks of Strategy {sorted(HOOKS)} and checked hooks "
+                    f"{sorted(_RESULT_CHECKS)} differ")
+
+
+def _forward(hook: str) -> Callable[..., Any]:
+    check = _RESULT_CHECKS[hook]
+
+    def forward(self: CheckedStrategy, *args: Any) -> Any:
+        return check(self, self._call(hook, *args), *args)
+
+    forward.__name__ = forward.__qualname__ = hook
+    forward.__doc__ = getattr(Strategy, hook).__doc__
+    return forward
+
+
+for _hook in HOOKS:
+    setattr(CheckedStrategy, _hook, _forward(_hook))
 
 
 def available() -> list[str]:
     return registry.available(GROUP)
 
 
-def load_strategy(name: str, params: Strategy | Mapping[str, Any] | None = None) -> Strategy:
-    """Strategy ``name`` from the entry points; a run wraps it in ``CheckedStrategy``.
-
-    ``params`` is the strategy's own dataclass instance (what the typed config holds once its schema
-    is registered) or a mapping of hyperparameters (a plugin config without a schema).
-    """
+def strategy_class(name: str) -> type[Strategy]:
+    """The dataclass registered as strategy ``name``; a one-line ``StrategyError`` if it is none."""
     cls = registry.load(GROUP, "strategy", name, StrategyError)
     if not (isinstance(cls, type) and issubclass(cls, Strategy) and dataclasses.is_dataclass(cls)):
         raise StrategyError(
             f"strategy '{name}': expected a @dataclass subclass of bench.strategy.Strategy, found {cls!r}"
         )
-    if isinstance(params, Strategy):
-        if not isinstance(params, cls):
-            found = type(params).__name__
-            raise StrategyError(f"strategy '{name}': expected parameters of {cls.__name__}, found {found}")
-        return params
+    return cls
+
+
+def unknown_params(name: str, cls: type[Strategy], params: Mapping[str, Any]) -> None:
+    """A ``ConfigError`` naming the keys of ``params`` that strategy ``name`` has no field for."""
     fields = {f.name for f in dataclasses.fields(cls)}
-    params = dict(params or {})
     unknown = sorted(set(params) - fields)
     if unknown:
         raise ConfigError(
             f"strategy '{name}': expected parameters among {', '.join(sorted(fields)) or '(none)'}, "
             f"found {', '.join(repr(u) for u in unknown)}"
         )
-    from bench.validate import check_fields
 
-    check_fields(f"strategy '{name}' parameter", cls, params, sep=" ")  # types from the annotations, ranges below
+
+def load_strategy(name: str, params: Strategy | Mapping[str, Any] | None = None) -> Strategy:
+    """Strategy ``name`` from the entry points; a run wraps it in ``CheckedStrategy``.
+
+    ``params`` is the strategy's own dataclass instance (what the typed config holds once its schema
+    is registered; returned as it is) or a mapping of hyperparameters (the strategy is built from it).
+    """
+    cls = strategy_class(name)
+    if isinstance(params, Strategy):
+        if not isinstance(params, cls):
+            found = type(params).__name__
+            raise StrategyError(f"strategy '{name}': expected parameters of {cls.__name__}, found {found}")
+        return params
+    params = dict(params or {})
+    unknown_params(name, cls, params)
+    check_types(f"strategy '{name}' parameter ", cls, params)  # types from the annotations, ranges below
     try:
         return cls(**params)
     except (TypeError, ValueError) as exc:

@@ -161,6 +161,8 @@ def record_job(sweep_dir: str | Path, job: dict[str, Any]) -> str:
 
 def count_jobs(task_overrides: list[str]) -> int | None:
     """How many runs the basic sweeper makes of these overrides (None if it cannot tell)."""
+    # Hydra internal (hydra-core 1.3, hence the <1.4 pin): BasicSweeper.split_arguments is how Hydra
+    # itself expands a sweep; no public API counts the jobs
     from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
     from hydra.core.override_parser.overrides_parser import OverridesParser
 

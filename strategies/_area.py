@@ -10,8 +10,7 @@ import math
 
 import torch
 
-from bench.errors import StrategyError
-from bench.slam.raster import RasterOutput
+from bench.api import RasterOutput, StrategyError
 
 AREA_MODES: tuple[str, ...] = ("exact", "analytic", "radius")
 

@@ -7,7 +7,7 @@ from typing import ClassVar
 
 import torch
 
-from bench.strategy import PruneContext, Strategy, check_choice, top_k_keep
+from bench.api import PruneContext, Strategy, check_choice, top_k_keep
 from strategies._area import AREA_MODES, area_score
 
 

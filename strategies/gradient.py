@@ -13,7 +13,7 @@ from typing import ClassVar
 
 import torch
 
-from bench.strategy import PruneContext, Strategy, TrackingContext, top_k_keep
+from bench.api import PruneContext, Strategy, TrackingContext, top_k_keep
 
 STATE_GRAD_SUM = "gradient_importance"  # [N] sum of g_i over the tracked frames that rendered the Gaussian
 STATE_FRAMES = "gradient_frames"  # [N] tracked frames that rendered the Gaussian

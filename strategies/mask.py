@@ -25,8 +25,17 @@ from typing import ClassVar
 
 import torch
 
-from bench.slam.gaussians import GaussianMap, ParamSpec
-from bench.strategy import MappingContext, PruneContext, Strategy, check, check_choice, is_int, top_k_keep
+from bench.api import (
+    GaussianMap,
+    MappingContext,
+    ParamSpec,
+    PruneContext,
+    Strategy,
+    check,
+    check_choice,
+    is_int,
+    top_k_keep,
+)
 
 SELECT_MODES: tuple[str, ...] = ("ratio", "learned")
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
-from bench.strategy import Strategy
+from bench.api import Strategy
 
 
 @dataclass

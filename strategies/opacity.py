@@ -16,8 +16,7 @@ from typing import ClassVar
 
 import torch
 
-from bench.errors import StrategyError
-from bench.strategy import PruneContext, Strategy, check, top_k_keep
+from bench.api import PruneContext, Strategy, StrategyError, check, top_k_keep
 
 STATE_SIGNIFICANCE = "opacity_significance"  # [N] sum over observing views of o_i * hit_count_i
 STATE_VIEWS = "opacity_views"  # [N] views (prune calls) in which the Gaussian hit at least one pixel

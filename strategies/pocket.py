@@ -15,9 +15,7 @@ from typing import ClassVar
 
 import torch
 
-from bench.errors import StrategyError
-from bench.slam.raster import TILE_PX
-from bench.strategy import PruneContext, Strategy, check, check_choice, is_int
+from bench.api import TILE_PX, PruneContext, Strategy, StrategyError, check, check_choice, is_int
 from strategies._area import AREA_MODES, area_score
 
 BUDGET_ROUNDINGS: tuple[str, ...] = ("ceil", "floor")

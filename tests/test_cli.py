@@ -150,3 +150,24 @@ def test_end_to_end_tiny_run_is_accurate(tmp_path):
     # resume: the same config is skipped, a changed one is not
     again = run(cfg, out_dir=tmp_path)
     assert again.skipped and again.metrics == m
+
+
+@pytest.mark.slow
+def test_a_single_run_is_validated_and_built_once(tmp_path, monkeypatch):
+    """The CLI's check before Hydra starts builds the run (config, strategy); ``bench.run`` uses that."""
+    import contextlib
+    import io
+
+    import bench.validate
+    from bench import cli
+
+    conversions = []
+    convert = bench.validate.to_run_config
+    monkeypatch.setattr(bench.validate, "to_run_config", lambda cfg: conversions.append(1) or convert(cfg))
+    monkeypatch.setattr(sys, "argv", ["bench", "+experiment=tiny", "+strategy=pocket", "dataset.n_frames=3",
+                                      "slam.mapping_iters=2", "slam.tracking_iters=2", "slam.refine_iters=0",
+                                      "eval.lpips=false", "progress=false", f"hydra.run.dir={tmp_path}"])
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as err:
+        assert cli.main() == 0, err.getvalue()
+    assert json.loads((tmp_path / "metrics.json").read_text())["status"] == "ok"
+    assert len(conversions) == 1  # one conversion: every rule run once, the strategy built once

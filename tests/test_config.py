@@ -10,11 +10,12 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from bench.cli import CONF_DIR
-from bench.config import RunConfig, as_config, dataset_schemas, to_run_config
+from bench.config import RunConfig, dataset_schemas, to_run_config
 from bench.datasets.kitti import KittiConfig
 from bench.errors import ConfigError
 from bench.slam.system import SlamConfig
 from bench.strategy import Strategy
+from bench.typed import as_config
 
 
 def compose_cfg(*overrides: str):
@@ -98,5 +99,5 @@ def test_mapping_is_checked_against_the_dataclass():
         as_config(KittiConfig, {"downscale": "half"})
     with pytest.raises(ConfigError, match="found dwnscale"):
         as_config(KittiConfig, {"dwnscale": 2})
-    with pytest.raises(ConfigError, match="kitti stride: expected an integer >= 1, found 0"):
+    with pytest.raises(ConfigError, match="dataset.stride: expected an integer >= 1, found 0"):
         as_config(KittiConfig, {"stride": 0})

@@ -110,7 +110,7 @@ def test_sensor_noise_is_drawn_per_run_seed_and_off_by_default():
     assert torch.equal(a.rgb, a2.rgb) and torch.equal(a.depth_m, a2.depth_m)
     assert not torch.equal(a.rgb, b.rgb) and not torch.equal(a.depth_m, b.depth_m)
     assert 0.01 < float((a.rgb - clean.rgb).std()) < 0.03
-    with pytest.raises(ConfigError, match="synthetic noise: expected rgb_noise_std and depth_noise_rel >= 0"):
+    with pytest.raises(ConfigError, match="dataset.rgb_noise_std: expected a number >= 0, found -0.1"):
         open_sequence({**SMALL, "rgb_noise_std": -0.1})
 
 

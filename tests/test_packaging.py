@@ -78,6 +78,14 @@ def test_wheel_install_finds_its_configs(wheel_venv, tmp_path):
     assert cfg.returncode == 0, cfg.stderr[-2000:]
     composed = yaml.safe_load(cfg.stdout)
     assert composed["strategy"]["name"] == "pocket" and composed["dataset"]["name"] == "kitti"
+    # a user's ./conf is searched ahead of the installed configs (hydra_plugins/pocketbench_searchpath)
+    (tmp_path / "conf" / "dataset").mkdir(parents=True)
+    (tmp_path / "conf" / "dataset" / "kitti.yaml").write_text(
+        "defaults:\n  - /schema/dataset/kitti@_here_\n  - _self_\nroot: /data/my_kitti\n")
+    cfg = subprocess.run(["pocketbench", "dataset=kitti", "--cfg", "job"], cwd=tmp_path, env=env, capture_output=True,
+                         text=True, timeout=120)  # fmt: skip
+    assert cfg.returncode == 0, cfg.stderr[-2000:]
+    assert yaml.safe_load(cfg.stdout)["dataset"]["root"] == "/data/my_kitti"
 
 
 @pytest.mark.slow

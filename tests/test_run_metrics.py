@@ -7,7 +7,7 @@ import json
 import pytest
 from hydra import compose, initialize_config_dir
 
-from bench.conf import CONF_DIR
+from bench.cli import CONF_DIR  # importing the CLI registers the schemas the configs build on
 from bench.run import run
 
 TINY = ["dataset.width=48", "dataset.height=32", "dataset.n_frames=4", "slam.tracking_iters=4",

@@ -12,7 +12,7 @@ from bench.errors import DatasetError
 
 GROUP = "pocketbench.datasets"
 
-__all__ = ["GROUP", "Frame", "Sequence", "canonical_seq", "open_sequence"]
+__all__ = ["GROUP", "Frame", "Sequence", "canonical_seq", "open_sequence", "schema"]
 
 
 def open_sequence(name: str, cfg: Mapping[str, Any]) -> Sequence:
@@ -26,6 +26,21 @@ def open_sequence(name: str, cfg: Mapping[str, Any]) -> Sequence:
     return seq
 
 
+def _module(name: str) -> Any:
+    """The module that defines dataset ``name``'s factory; None if the dataset is not installed."""
+    try:
+        factory = registry.load(GROUP, "dataset", name, DatasetError)
+    except DatasetError:
+        return None
+    return sys.modules.get(getattr(factory, "__module__", ""))
+
+
+def schema(name: str) -> type | None:
+    """The config dataclass of dataset ``name``: ``SCHEMA`` beside its factory; None for a plugin without one
+    (its settings then arrive as a plain dict)."""
+    return getattr(_module(name), "SCHEMA", None)
+
+
 def canonical_seq(name: str, seq: Any) -> str | None:
     """The one name sequence ``seq`` of dataset ``name`` is recorded and reported under.
 
@@ -35,10 +50,5 @@ def canonical_seq(name: str, seq: Any) -> str | None:
     """
     if seq is None or str(seq).strip() == "":
         return None
-    try:
-        factory = registry.load(GROUP, "dataset", name, DatasetError)
-    except DatasetError:
-        return str(seq).strip()
-    module = sys.modules.get(getattr(factory, "__module__", ""))
-    fn = getattr(module, "canonical_seq", None)
+    fn = getattr(_module(name), "canonical_seq", None)
     return str(fn(seq)) if callable(fn) else str(seq).strip()

@@ -19,6 +19,7 @@ from evo.core import sync
 from bench.datasets.base import RecordedConfig
 from bench.errors import ConfigError, DatasetError
 from bench.slam.se3 import quat_to_rotmat
+from bench.typed import setting
 
 REPO = Path(__file__).resolve().parents[2]
 _LOG = logging.getLogger("bench.datasets")
@@ -29,14 +30,10 @@ GT_POLICIES: tuple[str, ...] = ("drop", "error")
 class GroundTruthPolicy:
     """How frames are matched to a ground truth recorded on its own clock (EuRoC, TUM)."""
 
-    gt_max_diff_s: float = 0.02  # frame <-> ground-truth timestamp association tolerance
-    gt_missing: str = "drop"  # drop | error: what to do with frames that have no pose within gt_max_diff_s
-
-    def check_policy(self, dataset: str) -> None:
-        if self.gt_missing not in GT_POLICIES:
-            raise ConfigError(f"{dataset} gt_missing: expected 'drop' or 'error', found {self.gt_missing!r}")
-        if not self.gt_max_diff_s > 0:
-            raise ConfigError(f"{dataset} gt_max_diff_s: expected a positive number, found {self.gt_max_diff_s}")
+    # frame <-> ground-truth timestamp association tolerance
+    gt_max_diff_s: float = setting(0.02, "float", lo=0.0, lo_open=True)
+    # drop | error: what to do with frames that have no pose within gt_max_diff_s
+    gt_missing: str = setting("drop", "str", choices=GT_POLICIES)
 
 
 def readme(dataset: str) -> str:

@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from bench.errors import ConfigError
+from bench.typed import check_rules, setting
 
 MISSING_VALUE = "???"  # OmegaConf's marker for a setting that has no default
 
@@ -25,8 +26,11 @@ MISSING_VALUE = "???"  # OmegaConf's marker for a setting that has no default
 class DatasetConfig:
     """Settings every dataset has; each loader's config subclasses it and holds its own defaults."""
 
-    name: str = MISSING_VALUE
-    seq: str | None = None  # always a string; None = the dataset's default sequence
+    name: str = setting(MISSING_VALUE, "str")
+    seq: str | None = setting(None, "seq", nullable=True)  # always a string; None = the dataset's default sequence
+
+    def __post_init__(self) -> None:
+        check_rules(self, "dataset.")  # every field's rule, the subclasses' included
 
     def default_sequence(self) -> str | None:
         """The sequence a run uses when none is named (recorded as ``run.seq``)."""
@@ -37,21 +41,19 @@ class DatasetConfig:
 class RecordedConfig(DatasetConfig):
     """A recorded dataset on disk: where it is, which frames, at what resolution."""
 
-    root: str = MISSING_VALUE  # holds the dataset's sequences; override: dataset.root=/path
-    default_seq: str = MISSING_VALUE  # used when seq is None
-    downscale: int = 1  # integer block downscale of images and depth; K scaled to match
-    first: int = 0  # first frame index (0-based, before stride)
-    last: int | None = None  # last frame index, inclusive; None = to the end
-    stride: int = 1  # take every stride-th frame
-    max_depth_m: float | None = None  # depth beyond this is set to 0; None keeps all
+    root: str = setting(MISSING_VALUE, "str", nullable=True)  # holds the dataset's sequences; dataset.root=/path
+    default_seq: str = setting(MISSING_VALUE, "seq", nullable=True)  # used when seq is None
+    downscale: int = setting(1, "int", lo=1)  # integer block downscale of images and depth; K scaled to match
+    first: int = setting(0, "int", lo=0)  # first frame index (0-based, before stride)
+    last: int | None = setting(None, "int", lo=0, nullable=True)  # last frame index, inclusive; None = to the end
+    stride: int = setting(1, "int", lo=1)  # take every stride-th frame
+    # depth beyond this is set to 0; None keeps all
+    max_depth_m: float | None = setting(None, "float", lo=0.0, lo_open=True, nullable=True)
 
     def __post_init__(self) -> None:
-        for key, least in (("downscale", 1), ("first", 0), ("last", 0), ("stride", 1)):
-            value = getattr(self, key)
-            if value is not None and value < least:
-                raise ConfigError(f"{self.name} {key}: expected an integer >= {least}, found {value}")
-        if self.max_depth_m is not None and not self.max_depth_m > 0:
-            raise ConfigError(f"{self.name} max_depth_m: expected a positive number or null, found {self.max_depth_m}")
+        super().__post_init__()
+        if self.last is not None and self.last < self.first:
+            raise ConfigError(f"dataset frame range: expected first <= last, found first={self.first} last={self.last}")
 
     def default_sequence(self) -> str:
         seq = self.seq if self.seq is not None and str(self.seq).strip() else self.default_seq

@@ -24,11 +24,11 @@ import cv2
 import numpy as np
 import yaml
 
-from bench.config import as_config
 from bench.datasets import _realio as realio
 from bench.datasets.base import Sequence
 from bench.datasets.stereo import DepthCache, StereoConfig, StereoParams, StereoSequence
 from bench.errors import DatasetError
+from bench.typed import as_config, setting
 
 LOG = logging.getLogger("bench.datasets.euroc")
 DATASET = "euroc"
@@ -57,13 +57,13 @@ class EurocConfig(StereoConfig, realio.GroundTruthPolicy):
     default_seq: str = "V1_01_easy"  # folder name or alias: MH01..MH05, V101..V103, V201..V203
     downscale: int = 2  # 752x480 -> 376x240; K (rectified P1) scaled to match
     max_depth_m: float | None = 10.0  # 0.11 m baseline: 1 px of disparity ~ 2 m at 10 m
-    rectify_alpha: float = 0.0  # cv2.stereoRectify alpha: 0 crops to valid pixels, 1 keeps all (black borders)
+    # cv2.stereoRectify alpha: 0 crops to valid pixels, 1 keeps all (black borders)
+    rectify_alpha: float = setting(0.0, "float", lo=0.0, hi=1.0)
     # nearest depth fx*b/64 ~ 0.75 m at full resolution
     stereo: StereoParams = field(default_factory=lambda: StereoParams(num_disparities=64))
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self.check_policy(self.name)
+
+SCHEMA = EurocConfig  # the dataset's typed settings, found through its entry point (bench.datasets.schema)
 
 
 def resolve_seq(seq: str) -> str:

@@ -17,11 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from bench.config import as_config
 from bench.datasets import _realio as realio
 from bench.datasets.base import Sequence
 from bench.datasets.stereo import DepthCache, StereoConfig, StereoSequence
-from bench.errors import ConfigError, DatasetError
+from bench.errors import DatasetError
+from bench.typed import as_config, setting
 
 LOG = logging.getLogger("bench.datasets.kitti")
 DATASET = "kitti"
@@ -36,14 +36,13 @@ class KittiConfig(StereoConfig):
     name: str = "kitti"
     root: str = "data/kitti"  # holds sequences/XX/ and poses/XX.txt
     default_seq: str = "06"  # numeric names are zero-padded ('6' -> '06')
-    color: str = "auto"  # auto | color | gray: image_2/3 (colour) or image_0/1 (gray); falls back with a log line
+    # auto | color | gray: image_2/3 (colour) or image_0/1 (gray); falls back with a log line
+    color: str = setting("auto", "str", choices=COLOR_MODES)
     downscale: int = 2  # 1241x376 -> 620x188 (1226x370 -> 613x185); the fused rasterizer affords 4x the pixels of 1/4
     max_depth_m: float | None = 50.0  # stereo depth beyond this is set to 0 (1 px of disparity ~ 8 m at 50 m)
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.color not in COLOR_MODES:
-            raise ConfigError(f"kitti color: expected auto, color or gray, found {self.color!r}")
+
+SCHEMA = KittiConfig  # the dataset's typed settings, found through its entry point (bench.datasets.schema)
 
 
 def normalize_seq(seq: Any) -> str:

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from omegaconf import OmegaConf
 
-from bench.conf import CONF_DIR
+from bench.conf import CONF_DIR, group_files
 from bench.datasets import open_sequence
 from bench.datasets.stereo import StereoSequence
 from bench.errors import BenchError, ConfigError
@@ -34,12 +34,14 @@ def load_cfg(name: str, overrides: list[str]) -> Any:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from bench.config import describe_error, register_configs
+    from bench.config import register_configs
+    from bench.typed import describe_error
 
-    path = CONF_DIR / "dataset" / f"{name}.yaml"
-    if not path.is_file():
-        found = ", ".join(sorted(p.stem for p in path.parent.glob("*.yaml"))) or "(none)"
-        raise ConfigError(f"dataset config not found: expected {path}, found configs: {found}")
+    files = group_files("dataset")  # ./conf/dataset/ first, then the shipped ones
+    if name not in files:
+        found = ", ".join(sorted(files)) or "(none)"
+        raise ConfigError(f"dataset config not found: expected {CONF_DIR / 'dataset' / name}.yaml or "
+                          f"conf/dataset/{name}.yaml, found configs: {found}")
     dotlist = []
     for item in overrides:
         if "=" not in item:

@@ -27,6 +27,7 @@ import torch
 from bench.datasets import _realio as realio
 from bench.datasets.base import RecordedConfig, TimedSequence
 from bench.errors import ConfigError
+from bench.typed import setting
 
 CACHE_VERSION = 1  # bump when the depth pipeline changes in a way the key does not capture
 DEFAULT_CACHE_DIR = "~/.cache/pocketbench/depth"
@@ -69,7 +70,7 @@ class StereoParams:
 class StereoConfig(RecordedConfig):
     """A dataset whose depth comes from a stereo pair (KITTI, EuRoC)."""
 
-    cache_dir: str | None = DEFAULT_CACHE_DIR  # per-frame depth cache; None disables
+    cache_dir: str | None = setting(DEFAULT_CACHE_DIR, "str", nullable=True)  # per-frame depth cache; None disables
     stereo: StereoParams = field(default_factory=StereoParams)  # cv2.StereoSGBM, run at full resolution
 
 

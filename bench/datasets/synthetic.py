@@ -23,9 +23,9 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from bench.config import as_config
 from bench.datasets.base import DatasetConfig, TimedSequence
 from bench.errors import ConfigError, DatasetError
+from bench.typed import SEED_MAX, as_config, setting
 
 CAMERA_HEIGHT_M = 1.6
 SKY_RADIUS_M = 120.0
@@ -345,38 +345,26 @@ class SyntheticConfig(DatasetConfig):
     """``dataset=synthetic``: the scene and the drive; ``seq`` (an integer as a string) overrides ``seed``."""
 
     name: str = "synthetic"
-    seed: int = 0  # the scene layout (which street); the run's seed does not change it
-    width: int = 320  # px; 4x the pixels of 160x96, which the fused rasterizer affords
-    height: int = 192  # px
-    n_frames: int = 40  # a drive of n_frames x speed_m_per_frame
-    speed_m_per_frame: float = 0.5
-    sway_m: float = 1.5
-    fov_deg: float = 80.0
-    supersample: int = 2  # rays per pixel along each axis
-    fps_hz: float = 10.0
-    run_seed: int = 0  # the run's seed (conf/dataset/synthetic.yaml links it): texture and sensor noise
-    rgb_noise_std: float = 0.0  # Gaussian colour noise per pixel (0-1 scale), drawn per (run_seed, frame); 0 = off
-    depth_noise_rel: float = 0.0  # Gaussian depth noise, std as a fraction of depth; 0 = off
+    seed: int = setting(0, "int", lo=0, hi=SEED_MAX)  # the scene layout (which street); the run's seed does not
+    width: int = setting(320, "int", lo=16)  # px; 4x the pixels of 160x96, which the fused rasterizer affords
+    height: int = setting(192, "int", lo=16)  # px
+    n_frames: int = setting(40, "int", lo=2)  # a drive of n_frames x speed_m_per_frame
+    speed_m_per_frame: float = setting(0.5, "float", lo=0.0, lo_open=True)
+    sway_m: float = setting(1.5, "float", lo=0.0)
+    fov_deg: float = setting(80.0, "float", lo=0.0, hi=180.0, lo_open=True)
+    supersample: int = setting(2, "int", lo=1)  # rays per pixel along each axis
+    fps_hz: float = setting(10.0, "float", lo=0.0, lo_open=True)
+    # the run's seed (conf/dataset/synthetic.yaml links it): texture and sensor noise
+    run_seed: int = setting(0, "int", lo=0, hi=SEED_MAX)
+    # Gaussian colour noise per pixel (0-1 scale), drawn per (run_seed, frame); 0 = off
+    rgb_noise_std: float = setting(0.0, "float", lo=0.0)
+    depth_noise_rel: float = setting(0.0, "float", lo=0.0)  # Gaussian depth noise, std as a fraction of depth; 0 = off
     # straight: the original street (sway, no turns); grid: a seeded street grid, once round a block
     # and back onto the first street (the revisit), then random turns (speed and sway as above)
-    route: str = "straight"
+    route: str = setting("straight", "str", choices=ROUTES)
     # a KITTI-format poses file: frame i is pose i, on the ground (height, pitch and roll dropped);
     # replaces route, speed_m_per_frame and sway_m; streets are laid along its ground track
-    route_file: str | None = None
-
-    def __post_init__(self) -> None:
-        if self.route not in ROUTES:
-            raise ConfigError(f"synthetic route: expected one of {', '.join(ROUTES)}, found '{self.route}'")
-        if self.width < 16 or self.height < 16 or self.n_frames < 2:
-            raise ConfigError(
-                f"synthetic dataset: expected width, height >= 16 and n_frames >= 2, found "
-                f"{self.width}x{self.height}, {self.n_frames} frames"
-            )
-        if self.rgb_noise_std < 0 or self.depth_noise_rel < 0:
-            raise ConfigError(
-                f"synthetic noise: expected rgb_noise_std and depth_noise_rel >= 0, found "
-                f"{self.rgb_noise_std} and {self.depth_noise_rel}"
-            )
+    route_file: str | None = setting(None, "path", nullable=True)
 
     def default_sequence(self) -> str:
         return str(self.scene_seed())
@@ -388,6 +376,9 @@ class SyntheticConfig(DatasetConfig):
             return int(self.seq)
         except ValueError:
             raise ConfigError(f"synthetic seq: expected an integer seed, found '{self.seq}'") from None
+
+
+SCHEMA = SyntheticConfig  # the dataset's typed settings, found through its entry point (bench.datasets.schema)
 
 
 class SyntheticSequence(TimedSequence):

@@ -21,11 +21,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from bench.config import as_config
 from bench.datasets import _realio as realio
 from bench.datasets.base import RecordedConfig, Sequence, TimedSequence
 from bench.errors import ConfigError, DatasetError
 from bench.stamps import order_problem
+from bench.typed import as_config, setting
 
 LOG = logging.getLogger("bench.datasets.tum")
 DATASET = "tum"
@@ -48,17 +48,14 @@ class TumConfig(RecordedConfig, realio.GroundTruthPolicy):
     default_seq: str = "rgbd_dataset_freiburg1_desk"  # folder name, or short form fr1_desk
     downscale: int = 2  # 640x480 -> 320x240; K scaled to match
     max_depth_m: float | None = 10.0  # Kinect readings beyond this are set to 0; None keeps all
-    max_diff_s: float = 0.02  # rgb <-> depth association (TUM associate.py's default tolerance)
-    depth_scale: float = 5000.0  # PNG value per metre
+    # rgb <-> depth association (TUM associate.py's default tolerance)
+    max_diff_s: float = setting(0.02, "float", lo=0.0, lo_open=True)
+    depth_scale: float = setting(5000.0, "float", lo=0.0, lo_open=True)  # PNG value per metre
     # [fx, fy, cx, cy] at 640x480, picked by the freiburgN in the sequence name
     intrinsics: dict[str, list[float]] = field(default_factory=lambda: dict(DEFAULT_INTRINSICS))
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self.check_policy(self.name)
-        for key in ("max_diff_s", "depth_scale"):
-            if not getattr(self, key) > 0:
-                raise ConfigError(f"tum {key}: expected a positive number, found {getattr(self, key)}")
+
+SCHEMA = TumConfig  # the dataset's typed settings, found through its entry point (bench.datasets.schema)
 
 
 def resolve_seq(seq: str) -> str:

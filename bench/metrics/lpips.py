@@ -149,6 +149,10 @@ class LPIPS:
         logger.info("lpips: alexnet backbone from %s, linear heads from %s", found, lin_path)
         return cls(features, lins, device)
 
+    def to(self, device: torch.device | str) -> LPIPS:
+        """The same network on ``device`` (a model loaded on CPU at validation, used where the run renders)."""
+        return self if torch.device(device) == self.device else LPIPS(self.features, self.lins, device)
+
     def _taps(self, x: torch.Tensor) -> list[torch.Tensor]:
         taps = []
         for i, layer in enumerate(self.features):

@@ -1,4 +1,5 @@
-"""CLI: ``python -m bench.report SWEEP_DIR [...] --out reports/NAME [--paper] [--baseline none]``.
+"""CLI: ``python -m bench.report SWEEP_DIR [...] --out reports/NAME [--paper] [--baseline none]``,
+or ``python -m bench.report --study NAME``: the runs and options of ``conf/study/NAME.yaml``.
 
 Known failures (``BenchError``) print one line and exit 2; anything else is a bug and keeps its
 traceback.
@@ -25,7 +26,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--redraw", type=Path, default=None, metavar="REPORT_DIR",
                         help="draw the figures of a report folder again from its runs.csv and keyframes.csv "
                              "(no run dirs needed), in place")  # fmt: skip
-    parser.add_argument("--paper", action="store_true", help="add the paper's figures as '(paper)' rows")
+    parser.add_argument("--study", default=None,
+                        help="the runs of conf/study/NAME.yaml (bench.study) and its report options: --out, --paper; "
+                             "a positional KEY=VALUE is an override the study ran with (as after +study=NAME)")
+    parser.add_argument("--paper", action="store_true", default=None,
+                        help="add the paper's figures as '(paper)' rows")
     parser.add_argument("--baseline", default="none", help="strategy the relative columns compare with")
     parser.add_argument("--format", default="png", help="figure formats, comma-separated: png,pdf,svg (default png)")
     parser.add_argument("--dpi", type=int, default=DPI, help=f"raster resolution of png figures (default {DPI})")
@@ -33,6 +38,26 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="YAML of method names and metrics to show (default: the paper's names, all metrics; "
                              "template: bench/report/labels.yaml)")  # fmt: skip
     return parser.parse_args(argv)
+
+
+def study_inputs(args: argparse.Namespace) -> None:
+    """``--study NAME``: the study's run dirs that exist, and its report options where the command line gives none."""
+    from bench.study import load
+
+    overrides = [str(d) for d in args.dirs if "=" in str(d) and not d.exists()]
+    args.dirs = [d for d in args.dirs if str(d) not in overrides]
+    study, jobs = load(args.study, overrides)
+    found = [job.run_dir for job in jobs if job.run_dir.is_dir()]
+    if not found:
+        first = jobs[0].run_dir if jobs else "-"
+        raise ReportError(f"study '{study.name}': expected run dirs of its {len(jobs)} runs, found none (first: "
+                          f"{first}); run: pocketbench --multirun +study={study.name}")
+    if len(found) < len(jobs):
+        print(f"warning: study '{study.name}': {len(jobs) - len(found)} of {len(jobs)} run dirs missing",
+              file=sys.stderr)
+    args.dirs = [*args.dirs, *found]
+    args.out = args.out or Path(study.report.get("out", f"reports/{study.name}"))
+    args.paper = bool(study.report.get("paper", False)) if args.paper is None else args.paper
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -48,9 +73,11 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"warning: {warning}", file=sys.stderr)
             print(f"{len(result.runs)} runs: redrew {len(result.files)} figures in {result.out}")
             return 0
+        if args.study:
+            study_inputs(args)
         if not args.dirs or args.out is None:
-            raise ReportError("expected run dirs and --out (or --redraw REPORT_DIR)")
-        result = make_report(args.dirs, args.out, paper=args.paper, baseline=args.baseline, formats=formats,
+            raise ReportError("expected run dirs and --out (or --study NAME, or --redraw REPORT_DIR)")
+        result = make_report(args.dirs, args.out, paper=bool(args.paper), baseline=args.baseline, formats=formats,
                              dpi=args.dpi, labels=load_labels(args.labels))  # fmt: skip
     except BenchError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -8,19 +8,27 @@ state and the birth keyframe can never drift out of step with the parameters.
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import torch
 
-# Learning rates per parameter (Adam), tuned for ~100 mapping iterations per keyframe rather than
-# 3DGS's 30k: colours and log-scales step faster than 3DGS's colour rate (log-scales at 3DGS's rate).
-DEFAULT_LRS = {
-    "means": 1e-2,  # metres per Adam step; outdoor scenes span 3-120 m
-    "log_scales": 5e-3,
-    "quats": 1e-3,
-    "opacity_logits": 5e-2,
-    "colors": 2e-2,
-}
+
+@dataclass
+class LearningRates:
+    """Adam learning rate per Gaussian parameter (``slam.lrs.NAME``).
+
+    Tuned for ~100 mapping iterations per keyframe rather than 3DGS's 30k: colours and log-scales
+    step faster than 3DGS's colour rate (log-scales at 3DGS's rate).
+    """
+
+    means: float = 1e-2  # metres per Adam step; outdoor scenes span 3-120 m
+    log_scales: float = 5e-3
+    quats: float = 1e-3
+    opacity_logits: float = 5e-2
+    colors: float = 2e-2
+
+
+DEFAULT_LRS: dict[str, float] = asdict(LearningRates())
 
 
 @dataclass(frozen=True)

@@ -2,6 +2,8 @@
 
 Conventions: a twist ``xi = [v, w]`` (translation part first), poses as [4, 4] homogeneous
 matrices, quaternions ``quat_wxyz``. Camera frames follow OpenCV (x right, y down, z forward).
+Only what the harness uses lives here; the inverses that only tests need (``se3_log``,
+``rotmat_to_quat``) live in ``tests/slam/test_se3.py``.
 """
 
 from __future__ import annotations
@@ -72,22 +74,6 @@ def se3_exp(xi: torch.Tensor) -> torch.Tensor:
     return torch.cat([top, bottom], -2)
 
 
-def se3_log(T: torch.Tensor) -> torch.Tensor:
-    """Pose [..., 4, 4] -> twist [..., 6]."""
-    R, t = T[..., :3, :3], T[..., :3, 3]
-    w = so3_log(R)
-    theta2 = (w * w).sum(-1)[..., None, None]
-    a, b, _ = _coeffs(theta2)
-    W = hat(w)
-    eye = torch.eye(3, dtype=T.dtype, device=T.device).expand(W.shape)
-    # V^-1 = I - W/2 + (1/theta^2)(1 - a/(2b)) W^2
-    small = theta2 < _SMALL
-    coef = torch.where(small, torch.full_like(theta2, 1 / 12), (1 - a / (2 * b)) / torch.where(small, 1, theta2))
-    V_inv = eye - 0.5 * W + coef * (W @ W)
-    v = (V_inv @ t[..., None])[..., 0]
-    return torch.cat([v, w], -1)
-
-
 def inverse(T: torch.Tensor) -> torch.Tensor:
     """Inverse of rigid poses [..., 4, 4] without a general matrix inverse."""
     R, t = T[..., :3, :3], T[..., :3, 3:]
@@ -111,57 +97,3 @@ def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
         ],
         -2,
     )
-
-
-def rotmat_to_quat(R: torch.Tensor) -> torch.Tensor:
-    """Rotation [..., 3, 3] -> ``quat_wxyz`` [..., 4] with w >= 0 (Shepperd's method)."""
-    m = R
-    tr = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
-    cands = torch.stack(
-        [
-            torch.stack(
-                [1 + tr, m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1
-            ),
-            torch.stack(
-                [
-                    m[..., 2, 1] - m[..., 1, 2],
-                    1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
-                    m[..., 0, 1] + m[..., 1, 0],
-                    m[..., 0, 2] + m[..., 2, 0],
-                ],
-                -1,
-            ),
-            torch.stack(
-                [
-                    m[..., 0, 2] - m[..., 2, 0],
-                    m[..., 0, 1] + m[..., 1, 0],
-                    1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2],
-                    m[..., 1, 2] + m[..., 2, 1],
-                ],
-                -1,
-            ),
-            torch.stack(
-                [
-                    m[..., 1, 0] - m[..., 0, 1],
-                    m[..., 0, 2] + m[..., 2, 0],
-                    m[..., 1, 2] + m[..., 2, 1],
-                    1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2],
-                ],
-                -1,
-            ),
-        ],
-        -2,
-    )  # [..., 4, 4]; row k is 4*q*q_k, best conditioned where its own entry is largest
-    diag = torch.stack(
-        [
-            1 + tr,
-            1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
-            1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2],
-            1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2],
-        ],
-        -1,
-    )
-    best = diag.argmax(-1)
-    q = torch.gather(cands, -2, best[..., None, None].expand(*best.shape, 1, 4))[..., 0, :]
-    q = q / q.norm(dim=-1, keepdim=True)
-    return torch.where(q[..., :1] < 0, -q, q)

@@ -15,7 +15,7 @@ import logging
 import random
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import torch
@@ -24,10 +24,11 @@ from bench.datasets.base import Frame
 from bench.errors import ConfigError, TrackingLost
 from bench.schema import PRUNE_QUARTILE_COLUMNS
 from bench.slam.frontend import FlowPnpConfig, relative_motion, to_gray_u8
-from bench.slam.gaussians import DEFAULT_LRS, GaussianMap
+from bench.slam.gaussians import GaussianMap, LearningRates
 from bench.slam.raster import BACKENDS, RasterOutput, rasterize
 from bench.slam.se3 import inverse, se3_exp, so3_log
 from bench.strategy import MappingContext, PruneConfig, PruneContext, Strategy, TrackingContext
+from bench.typed import as_config
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +57,7 @@ class SlamConfig:
     # (bench/slam/frontend.py), falling back to "velocity" when too few corners survive. Why: see
     # the README's "Known limits" (the velocity guess alone is lost on longer drives).
     tracking_init: str = "flow_pnp"
-    flow_pnp: dict[str, float] = field(default_factory=dict)  # FlowPnpConfig overrides
+    flow_pnp: FlowPnpConfig = field(default_factory=FlowPnpConfig)  # slam.flow_pnp.NAME=VALUE
     depth_loss_max_m: float = 30.0  # far pixels (sky, distant road) only constrain colour
     depth_far_m: float | None = 60.0  # Gaussians beyond this add no depth (see rasterize); None = all do
     depth_normalized: bool = False  # compare depth / silhouette (unbiased where coverage < 1)
@@ -95,7 +96,7 @@ class SlamConfig:
     init_opacity: float = 0.95  # opaque seeds: tracking needs a confident silhouette early (SplaTAM: 0.5)
     name: str = "default"  # the preset's name (conf/slam/NAME.yaml), recorded as slam_preset in metrics.json
     max_depth_m: float = 150.0  # observed depth beyond this is ignored
-    lrs: dict[str, float] = field(default_factory=dict)  # overrides of bench/slam/gaussians.py:DEFAULT_LRS
+    lrs: LearningRates = field(default_factory=LearningRates)  # slam.lrs.NAME=VALUE
     lost_residual: float = 0.25  # mean colour L1 on tracked pixels that counts as failure ...
     lost_patience: int = 3  # ... for this many consecutive frames
     lost_min_silhouette_frac: float = 0.05  # fewer confidently mapped pixels than this = collapsed
@@ -126,18 +127,9 @@ class SlamConfig:
             )
         if self.tracking_init not in ("velocity", "flow_pnp"):
             raise ConfigError(f"slam.tracking_init: expected 'velocity' or 'flow_pnp', found '{self.tracking_init}'")
-        bad_lrs = sorted(set(self.lrs) - set(DEFAULT_LRS))
-        if bad_lrs:
-            raise ConfigError(
-                f"slam.lrs: expected parameters among {', '.join(DEFAULT_LRS)}, found {', '.join(bad_lrs)}"
-            )
-        self.lrs = {**DEFAULT_LRS, **self.lrs}
-        known = set(FlowPnpConfig.__dataclass_fields__)
-        unknown = sorted(set(self.flow_pnp) - known)
-        if unknown:
-            raise ConfigError(
-                f"slam.flow_pnp: expected settings among {', '.join(sorted(known))}, found {', '.join(unknown)}"
-            )
+        # a mapping of overrides (SlamConfig(lrs={"colors": 0.5}) from Python) becomes the typed group
+        self.lrs = as_config(LearningRates, self.lrs, "slam.lrs")
+        self.flow_pnp = as_config(FlowPnpConfig, self.flow_pnp, "slam.flow_pnp")
 
 
 @dataclass
@@ -191,7 +183,8 @@ class System:
         torch.set_flush_denormal(True)
         self.K = K.to(device=device, dtype=torch.float32)
         self.H, self.W = height, width
-        self.map = GaussianMap(device, lrs=cfg.lrs, extra=strategy.extra_params(), state_dtypes=strategy.state_spec())
+        self.map = GaussianMap(device, lrs=asdict(cfg.lrs), extra=strategy.extra_params(),
+                               state_dtypes=strategy.state_spec())
         self.map.state["_track_grad_sum"] = torch.empty(0, device=device)
         self.map.state["_track_grad_n"] = torch.empty(0, device=device)
         self.keyframes: list[_Keyframe] = []
@@ -206,7 +199,7 @@ class System:
         self._timer = timer
         ys, xs = torch.meshgrid(torch.arange(height, device=device), torch.arange(width, device=device), indexing="ij")
         self._pix = torch.stack([xs, ys], -1).float()  # [H, W, 2]
-        self._flow_cfg = FlowPnpConfig(**cfg.flow_pnp)
+        self._flow_cfg = cfg.flow_pnp
         self._gray: np.ndarray | None = None  # [H, W] uint8 of the frame being processed (flow_pnp)
         self._prev_obs: tuple | None = None  # (gray [H, W] uint8, depth [H, W] float) of the last frame
         self.init_source: list[str] = []  # per tracked frame: "flow_pnp" or "velocity"

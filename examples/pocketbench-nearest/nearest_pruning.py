@@ -7,7 +7,7 @@ from typing import ClassVar
 
 import torch
 
-from bench.strategy import PruneContext, Strategy, TrackingContext, top_k_keep
+from bench.api import PruneContext, Strategy, TrackingContext, top_k_keep
 
 
 @dataclass

@@ -15,6 +15,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+# Hydra internals (hydra-core 1.3, hence the <1.4 pin in pyproject.toml): the basic sweeper is not
+# public API but is the sweeper this one extends, and get_overrides_dirname is how Hydra names a job's
+# dir (hydra.job.override_dirname), which a failed job's record must match
 from hydra._internal.config_loader_impl import get_overrides_dirname
 from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
 from hydra.core.override_parser.overrides_parser import OverridesParser
@@ -29,7 +32,28 @@ _OVERRIDE_DIRNAME = "${hydra:job.override_dirname}"
 
 
 class BenchSweeper(BasicSweeper):
-    """``hydra/sweeper=bench`` (the default in conf/config.yaml)."""
+    """``hydra/sweeper=bench`` (the default in conf/config.yaml).
+
+    ``+study=NAME`` (``conf/study/NAME.yaml``) sets ``study``: the sweep is then the study's sweeps,
+    one after another (``bench.study.expand``), each job in its own sweep's dir, with the rest of the
+    command line applied over the study's overrides.
+    """
+
+    def __init__(self, max_batch_size: int | None = None, params: Any = None, study: Any = None) -> None:
+        super().__init__(max_batch_size=max_batch_size, params=params)
+        self.study = study
+
+    def split_arguments(self, overrides: list[Any], max_batch_size: int | None) -> list[list[list[str]]]:
+        """The jobs of the command line (shadows Hydra's staticmethod, which ``sweep`` calls through self)."""
+        if not self.study:
+            return BasicSweeper.split_arguments(overrides, max_batch_size)
+        from bench.study import expand, parse
+
+        given = [o for o in overrides if o.key_or_group != "study"]
+        name = next((o.value() for o in overrides if o.key_or_group == "study"), "?")
+        jobs = [job for _, job in expand(parse(str(name), self.study), [o.input_line for o in given])]
+        n = max_batch_size or len(jobs) or 1
+        return [jobs[i : i + n] for i in range(0, len(jobs), n)]
 
     def sweep(self, arguments: list[str]) -> Any:
         launcher = self.launcher
@@ -81,20 +105,16 @@ class BenchSweeper(BasicSweeper):
 
 def _run_keys(config: Any, overrides: Sequence[str]) -> dict[str, Any]:
     """Best-effort run keys of a job that never composed: its overrides over the sweep's base config."""
-    given = {}
-    for o in overrides:
-        key, _, value = o.lstrip("+~").partition("=")
-        given[key] = value
-    base_strategy = OmegaConf.select(config, "strategy.name", default=None)
-    seed = given.get("seed", OmegaConf.select(config, "seed", default=None))
-    try:
-        seed = int(seed) if seed is not None else None
-    except ValueError:
-        seed = None
-    return {
-        "strategy": given.get("strategy") or base_strategy or "none",
-        "dataset": given.get("dataset") or OmegaConf.select(config, "dataset.name", default="unknown"),
+    from bench.keys import run_keys
+
+    given = dict(o.lstrip("+~").partition("=")[::2] for o in overrides)
+    keys = ("strategy.name", "dataset.name", "slam.name", "seed")
+    base = {k: OmegaConf.select(config, k, default=None) for k in keys}
+    seed = given.get("seed", base["seed"])
+    return run_keys({
+        "strategy": {"name": given.get("strategy") or base["strategy.name"]},
+        "dataset": {"name": given.get("dataset") or base["dataset.name"]},
+        "slam": {"name": given.get("slam") or base["slam.name"]},
         "seq": given.get("seq"),
-        "seed": seed,
-        "keep_ratio": None,
-    }
+        "seed": int(seed) if str(seed).isdigit() else None,
+    })

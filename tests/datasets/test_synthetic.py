@@ -38,7 +38,7 @@ def test_frames_and_depth_are_consistent_with_the_camera():
 
 
 def test_bad_size_is_a_config_error():
-    with pytest.raises(ConfigError, match="width, height >= 16"):
+    with pytest.raises(ConfigError, match="dataset.width: expected an integer >= 16, found 8"):
         open_sequence({"width": 8})
 
 

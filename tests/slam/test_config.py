@@ -1,8 +1,8 @@
 import pytest
 
-from bench.config import as_config
 from bench.errors import ConfigError
 from bench.slam.system import SlamConfig
+from bench.typed import as_config
 
 
 @pytest.mark.parametrize(

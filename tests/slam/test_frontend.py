@@ -88,8 +88,9 @@ def test_system_falls_back_to_velocity_without_corners():
 
 @pytest.mark.parametrize(("kw", "msg"), [
     ({"tracking_init": "orb"}, "slam.tracking_init: expected 'velocity' or 'flow_pnp', found 'orb'"),
-    ({"flow_pnp": {"corners": 5}}, "slam.flow_pnp: expected settings among .*, found corners"),
-    ({"lrs": {"colour": 0.01}}, "slam.lrs: expected parameters among means.*, found colour"),
+    ({"flow_pnp": {"corners": 5}}, "slam.flow_pnp: expected a setting among .*, found corners"),
+    ({"flow_pnp": {"min_inliers": "many"}}, "slam.flow_pnp.min_inliers: expected integer, found 'many'"),
+    ({"lrs": {"colour": 0.01}}, "slam.lrs: expected a setting among means.*, found colour"),
 ])
 def test_bad_settings_are_named(kw, msg):
     with pytest.raises(ConfigError, match=msg):
@@ -97,7 +98,10 @@ def test_bad_settings_are_named(kw, msg):
 
 
 def test_partial_learning_rates_keep_the_other_defaults():
+    from dataclasses import asdict
+
     from bench.slam.gaussians import DEFAULT_LRS
 
     cfg = SlamConfig(lrs={"colors": 0.5})
-    assert cfg.lrs == {**DEFAULT_LRS, "colors": 0.5}
+    assert asdict(cfg.lrs) == {**DEFAULT_LRS, "colors": 0.5}
+    assert SlamConfig(flow_pnp={"min_inliers": 7}).flow_pnp.min_inliers == 7  # typed, the other defaults kept

@@ -4,7 +4,78 @@ from __future__ import annotations
 
 import torch
 
-from bench.slam.se3 import hat, inverse, quat_to_rotmat, rotmat_to_quat, se3_exp, se3_log, so3_exp, so3_log
+from bench.slam.se3 import _SMALL, _coeffs, hat, inverse, quat_to_rotmat, se3_exp, so3_exp, so3_log
+
+
+# the inverses of se3_exp and quat_to_rotmat: only these tests need them, so they live here, not in bench
+def se3_log(T: torch.Tensor) -> torch.Tensor:
+    """Pose [..., 4, 4] -> twist [..., 6]."""
+    R, t = T[..., :3, :3], T[..., :3, 3]
+    w = so3_log(R)
+    theta2 = (w * w).sum(-1)[..., None, None]
+    a, b, _ = _coeffs(theta2)
+    W = hat(w)
+    eye = torch.eye(3, dtype=T.dtype, device=T.device).expand(W.shape)
+    # V^-1 = I - W/2 + (1/theta^2)(1 - a/(2b)) W^2
+    small = theta2 < _SMALL
+    coef = torch.where(small, torch.full_like(theta2, 1 / 12), (1 - a / (2 * b)) / torch.where(small, 1, theta2))
+    V_inv = eye - 0.5 * W + coef * (W @ W)
+    v = (V_inv @ t[..., None])[..., 0]
+    return torch.cat([v, w], -1)
+
+
+def rotmat_to_quat(R: torch.Tensor) -> torch.Tensor:
+    """Rotation [..., 3, 3] -> ``quat_wxyz`` [..., 4] with w >= 0 (Shepperd's method)."""
+    m = R
+    tr = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
+    cands = torch.stack(
+        [
+            torch.stack(
+                [1 + tr, m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1
+            ),
+            torch.stack(
+                [
+                    m[..., 2, 1] - m[..., 1, 2],
+                    1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
+                    m[..., 0, 1] + m[..., 1, 0],
+                    m[..., 0, 2] + m[..., 2, 0],
+                ],
+                -1,
+            ),
+            torch.stack(
+                [
+                    m[..., 0, 2] - m[..., 2, 0],
+                    m[..., 0, 1] + m[..., 1, 0],
+                    1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2],
+                    m[..., 1, 2] + m[..., 2, 1],
+                ],
+                -1,
+            ),
+            torch.stack(
+                [
+                    m[..., 1, 0] - m[..., 0, 1],
+                    m[..., 0, 2] + m[..., 2, 0],
+                    m[..., 1, 2] + m[..., 2, 1],
+                    1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2],
+                ],
+                -1,
+            ),
+        ],
+        -2,
+    )  # [..., 4, 4]; row k is 4*q*q_k, best conditioned where its own entry is largest
+    diag = torch.stack(
+        [
+            1 + tr,
+            1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
+            1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2],
+            1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2],
+        ],
+        -1,
+    )
+    best = diag.argmax(-1)
+    q = torch.gather(cands, -2, best[..., None, None].expand(*best.shape, 1, 4))[..., 0, :]
+    q = q / q.norm(dim=-1, keepdim=True)
+    return torch.where(q[..., :1] < 0, -q, q)
 
 
 def test_exp_log_round_trip():

@@ -78,3 +78,32 @@ def test_a_strategy_error_raised_inside_a_hook_gets_the_name():
 
     with pytest.raises(StrategyError, match="^strategy 'broken' after_mapping: expected rasterize"):
         CheckedStrategy(Broken(), "broken").after_mapping(_prune_ctx(_map(2)))
+
+
+def test_every_hook_of_the_contract_is_forwarded_and_checked():
+    """The wrapper's hooks come from one table: each hook of ``Strategy`` reaches the strategy through it."""
+    import bench.strategy as contract
+
+    public = {n for n, v in vars(Strategy).items() if callable(v) and not n.startswith("_")}
+    assert set(contract.HOOKS) == public
+    called = []
+
+    class Spy(Strategy):
+        pass
+
+    for hook in public:  # each hook records its call and answers as the base class does
+        def spy(self, *args, _hook=hook):
+            called.append(_hook)
+            return getattr(Strategy, _hook)(self, *args)
+        setattr(Spy, hook, spy)
+    g = _map(3)
+    wrapped = CheckedStrategy(Spy(), "spy")
+    mctx = MappingContext(1, 0, g, g.state, True)
+    wrapped.state_spec()
+    wrapped.extra_params()
+    wrapped.on_tracking_step(None)  # type: ignore[arg-type]
+    wrapped.render_mask(mctx)
+    wrapped.masked_count(g, g.state)
+    wrapped.mapping_loss(mctx)
+    wrapped.after_mapping(_prune_ctx(g))
+    assert sorted(called) == sorted(public)

@@ -78,5 +78,16 @@ def test_third_party_plugin_is_found_through_its_entry_point(tmp_path, monkeypat
         assert type(s).__name__ == "Mine" and s.threshold == 0.7 and isinstance(s, Strategy)
         with pytest.raises(ConfigError):
             load_strategy("mine", {"thresold": 0.7})
+        # registered the one typed way: +strategy=mine composes its dataclass, typed like a built-in's
+        from bench.cli import compose, composition_error
+        from bench.config import register_configs, to_run_config
+
+        assert "mine" in register_configs()  # no YAML of its own: strategy/mine built on its schema
+        cfg = to_run_config(compose(["+strategy=mine", "strategy.params.threshold=0.25"]))
+        assert type(cfg.strategy.params).__name__ == "Mine" and cfg.strategy.params.threshold == 0.25
+        with pytest.raises(Exception) as err:
+            compose(["+strategy=mine", "strategy.params.threshold=abc"])
+        assert composition_error(err.value, ["+strategy=mine", "strategy.params.threshold=abc"]) == (
+            "strategy 'mine' parameter threshold: expected a number, found 'abc'")
     finally:
         sys.modules.pop("myplug", None)
