@@ -20,6 +20,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 from omegaconf.errors import ConfigAttributeError, ConfigKeyError, OmegaConfBaseException
 
+from bench.checkpoint import CheckpointConfig
 from bench.conf import CONF_DIR
 from bench.errors import ConfigError, StrategyError
 from bench.slam.system import SlamConfig
@@ -83,7 +84,8 @@ class RunConfig:
     max_frames: int | None = None  # cut the sequence short (smoke tests)
     warmup_frames: int = 1  # frames excluded from FPS (the first frame only initialises the map)
     progress: bool = True  # progress bar with frame i/N, Gaussian count, fps
-    resume: bool = True  # skip a run whose out dir holds finished results of the same config hash
+    resume: bool = True  # skip a finished run of the same config, code and inputs; continue an interrupted one
+    checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)  # bench/checkpoint.py
     out_dir: str | None = None  # None = Hydra's output dir
     sweep_name: str = "default"  # multirun/<sweep_name>
 

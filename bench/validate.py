@@ -88,9 +88,11 @@ SETTINGS: dict[str, Spec] = {
     "save_maps": Spec("str", choices=("final", "every_keyframe")),  # bench/export.py:SAVE_MAPS
     "viz.pruning": Spec("bool"),
     "viz.every": Spec("int", 1),
+    "checkpoint.every": Spec("int", 0),  # bench/checkpoint.py:CheckpointConfig
+    "checkpoint.keep": Spec("int", 1, 2),
 }
 # Groups whose keys are all listed above: an unknown key there is a typo (``+eval.evry=2``).
-CLOSED_GROUPS = ("prune", "memory", "eval", "viz")
+CLOSED_GROUPS = ("prune", "memory", "eval", "viz", "checkpoint")
 OPEN_TOP = {"dataset", "slam", "strategy", *CLOSED_GROUPS}  # checked by their own specs
 
 # Dataset knobs shared by the built-in loaders; a third-party dataset's other keys pass through.
