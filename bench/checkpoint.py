@@ -91,18 +91,19 @@ def exists(out: Path) -> bool:
     return any((out / f).exists() for f in FILES)
 
 
-def find(out: Path, key: dict[str, Any], device: torch.device, rows: dict[str, int]) -> tuple[dict | None, str]:
+def find(out: Path, key: dict[str, Any], rows: dict[str, int]) -> tuple[dict | None, str]:
     """(the newest usable checkpoint, "") or (None, why none is usable).
 
     ``key`` is the run's resume key; ``rows`` the data rows now in the run's flushed files
-    (``traj``, ``keyframes``), which must hold at least what the checkpoint counted.
+    (``traj``, ``keyframes``), which must hold at least what the checkpoint counted. Tensors load
+    on the CPU, where torch keeps Adam's step counts and generator states; the run moves the rest.
     """
     reasons = []
     for name in FILES:
         path = out / name
         if not path.exists():
             continue
-        ckpt, why = _load(path, key, device, rows)
+        ckpt, why = _load(path, key, rows)
         if ckpt is not None:
             if reasons:
                 log.warning("%s: %s; using %s", out, reasons[0], name)
@@ -111,9 +112,9 @@ def find(out: Path, key: dict[str, Any], device: torch.device, rows: dict[str, i
     return None, reasons[0] if reasons else "no checkpoint"
 
 
-def _load(path: Path, key: dict[str, Any], device: torch.device, rows: dict[str, int]) -> tuple[dict | None, str]:
+def _load(path: Path, key: dict[str, Any], rows: dict[str, int]) -> tuple[dict | None, str]:
     try:
-        ckpt = torch.load(path, map_location=device, weights_only=True)
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # truncated, corrupt, or a pickle that is not plain tensors and values
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
         return None, f"is unreadable (truncated or corrupt: {first[:120]})"

@@ -186,7 +186,7 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None) -> RunRe
             log.info("skipping %s: completed results of the same config, code and inputs exist", out)
             return RunResult(stored["status"], out, stored.get("metrics", {}), stored.get("error"), skipped=True)
         if stored is not None and stored.get("status") == "interrupted" and ckpt.exists(out):
-            start, why = ckpt.find(out, keys, device, flushed_rows(out))
+            start, why = ckpt.find(out, keys, flushed_rows(out))
             if start is None:
                 reason = f"its checkpoint was not used: {why}; starting over from frame 0"
         if start is not None:

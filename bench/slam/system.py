@@ -301,7 +301,9 @@ class System:
             group["params"][0] = new
             g.params[name] = new
             if name in sd["moments"]:
-                g.optimizer.state[new] = {k: v.to(self.device) for k, v in sd["moments"][name].items()}
+                # Adam keeps "step" on the CPU (unless capturable); the moments live with the parameter
+                g.optimizer.state[new] = {k: v if k == "step" else v.to(self.device)
+                                          for k, v in sd["moments"][name].items()}
         g.birth_kf = sd["birth_kf"].to(self.device)
         g.state = {k: v.to(self.device) for k, v in sd["state"].items()}
         self.keyframes = []
