@@ -340,7 +340,8 @@ def restore(parts: Parts, start: dict[str, Any]) -> None:
     """Put a checkpoint's state into freshly built parts: the system, the strategy, the global generators."""
     parts.system.load_state_dict(start["system"], lambda i: parts.seq[i])
     vars(_inner(parts.strategy)).update(start["strategy"])
-    parts.timer.restore(start["drive"]["phase_s"], start["drive"]["phase_n"])
+    done = json.loads(start["drive"]["json"])
+    parts.timer.restore(done["phase_s"], done["phase_n"])
     ckpt.set_global_rng_state(start["rng"])  # last: nothing after it draws before the next frame
 
 
@@ -360,9 +361,12 @@ def write_checkpoint(cfg: RunConfig, parts: Parts, drive: Drive, out: Path, reco
         "keyframe": drive.windows[-1]["kf"] if drive.windows else -1,
         "system": parts.system.state_dict(),
         "strategy": dict(vars(_inner(parts.strategy))),
-        "drive": {"timestamps_s": drive.timestamps_s, "gt_c2w": drive.gt_c2w, "windows": drive.windows,
-                  "loop_s": drive.loop_s, "warmup_s": drive.warmup_s, "between": between,
-                  "phase_s": parts.timer.totals(), "phase_n": parts.timer.counts()},
+        # per-frame lists as one tensor, rows as one json string: torch.save pays per object
+        "drive": {"timestamps_s": torch.tensor(drive.timestamps_s, dtype=torch.float64),
+                  "gt_c2w": _stack_all(drive.gt_c2w),
+                  "json": json.dumps({"windows": drive.windows, "loop_s": drive.loop_s, "warmup_s": drive.warmup_s,
+                                      "between": between, "phase_s": parts.timer.totals(),
+                                      "phase_n": parts.timer.counts()})},
         "rng": ckpt.global_rng_state(),
         "rows": {"traj": n_done, "keyframes": len(drive.windows)},
         "stats": {**stats, "written": stats["written"] + 1},  # as they will be once this one is on disk
@@ -372,6 +376,11 @@ def write_checkpoint(cfg: RunConfig, parts: Parts, drive: Drive, out: Path, reco
                  write_s_total=round(stats["write_s_total"] + cost.write_s, 4))
     log.debug("%s: checkpoint at frame %d (keyframe %d): %.3f MiB in %.4f s", out, n_done, payload["keyframe"],
               cost.mib, cost.write_s)
+
+
+def _stack_all(mats: list[torch.Tensor | None]) -> torch.Tensor | list[torch.Tensor | None]:
+    """[F, 4, 4] when every frame has one, else the list as it is (frames without ground truth)."""
+    return torch.stack(mats) if mats and all(m is not None for m in mats) else mats
 
 
 def _test_signal_frame() -> tuple[int, int] | None:
@@ -398,9 +407,11 @@ def drive_frames(cfg: RunConfig, parts: Parts, out: Path, record: dict[str, Any]
     between = dict.fromkeys(("n_pruned", "n_candidates", "prune_s"), 0)  # prune.every=frame: since the last keyframe
     first = 0
     if start is not None:
-        done = start["drive"]
-        drive.timestamps_s, drive.gt_c2w, drive.windows = done["timestamps_s"], done["gt_c2w"], done["windows"]
-        drive.loop_s, drive.warmup_s, between = done["loop_s"], done["warmup_s"], done["between"]
+        done = json.loads(start["drive"]["json"])  # floats round-trip json exactly
+        drive.timestamps_s = start["drive"]["timestamps_s"].tolist()
+        drive.gt_c2w = list(start["drive"]["gt_c2w"])
+        drive.windows, drive.loop_s, drive.warmup_s = done["windows"], done["loop_s"], done["warmup_s"]
+        between = done["between"]
         first = start["frame"]
         metrics.update(num_frames=first, num_keyframes=len(drive.windows))
         bar.update(first)

@@ -262,7 +262,9 @@ class System:
     def state_dict(self) -> dict[str, Any]:
         """Everything that decides the next frames, as tensors and plain values (``torch.load(weights_only=True)``
         reads it back). Keyframe images are not stored: ``load_state_dict`` re-reads them from the sequence
-        by index, which is what keeps a checkpoint small (a KITTI keyframe is ~7 MiB of float images)."""
+        by index, which is what keeps a checkpoint small (a KITTI keyframe is ~7 MiB of float images).
+        Per-frame lists go in as one tensor or string each: ``torch.save`` pays per object, and a long
+        drive has thousands of poses."""
         g = self.map
         moments = {}
         for group in g.optimizer.param_groups:
@@ -277,11 +279,12 @@ class System:
             "moments": moments,
             "birth_kf": g.birth_kf,
             "state": dict(g.state),
-            "keyframes": [(kf.index, kf.w2c) for kf in self.keyframes],
-            "poses": self.poses,
+            "keyframes": {"index": torch.tensor([kf.index for kf in self.keyframes], dtype=torch.long),
+                          "w2c": _stack([kf.w2c for kf in self.keyframes])},  # [K], [K, 4, 4]
+            "poses": _stack(self.poses),  # [F, 4, 4]
             "frames_since_kf": self.frames_since_kf,
             "bad_frames": self._bad_frames,
-            "init_source": list(self.init_source),
+            "init_source": ",".join(self.init_source),
             "prev_obs": prev,
             "rng": _py_rng_state(self._rng),
             "densify_rng": _np_gen_state(self._densify_rng),
@@ -307,12 +310,12 @@ class System:
         g.birth_kf = sd["birth_kf"].to(self.device)
         g.state = {k: v.to(self.device) for k, v in sd["state"].items()}
         self.keyframes = []
-        for index, w2c in sd["keyframes"]:
+        for index, w2c in zip(sd["keyframes"]["index"].tolist(), sd["keyframes"]["w2c"], strict=True):
             rgb, depth = self.observe(frame_at(index))
             self.keyframes.append(_Keyframe(index, rgb, depth, w2c.to(self.device)))
         self.poses = [p.to(self.device) for p in sd["poses"]]
         self.frames_since_kf, self._bad_frames = sd["frames_since_kf"], sd["bad_frames"]
-        self.init_source = list(sd["init_source"])
+        self.init_source = sd["init_source"].split(",") if sd["init_source"] else []
         prev = sd["prev_obs"]
         self._prev_obs = None if prev is None else (prev[0].numpy(), prev[1].numpy())
         self._rng.setstate(_py_rng_from(sd["rng"]))
@@ -575,14 +578,18 @@ class System:
         return removed, n_candidates
 
 
+def _stack(mats: list[torch.Tensor]) -> torch.Tensor:
+    return torch.stack(mats) if mats else torch.empty(0, 4, 4)
+
+
 def _py_rng_state(rng: random.Random) -> list:
-    """``random.Random`` state as lists (what ``torch.load(weights_only=True)`` accepts)."""
+    """``random.Random`` state as plain values and one tensor (what ``torch.load(weights_only=True)`` reads)."""
     version, internal, gauss = rng.getstate()
-    return [version, list(internal), gauss]
+    return [version, torch.tensor(internal, dtype=torch.int64), gauss]  # 625 words < 2**32
 
 
 def _py_rng_from(state: list) -> tuple:
-    return (state[0], tuple(state[1]), state[2])
+    return (state[0], tuple(state[1].tolist()), state[2])
 
 
 def _np_gen_state(gen: np.random.Generator) -> dict[str, Any]:
