@@ -116,7 +116,7 @@ def _load(path: Path, key: dict[str, Any], rows: dict[str, int]) -> tuple[dict |
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # truncated, corrupt, or a pickle that is not plain tensors and values
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0].split(". ")[0]  # its first sentence
         return None, f"is unreadable (truncated or corrupt: {first[:120]})"
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         found = ckpt.get("format") if isinstance(ckpt, dict) else type(ckpt).__name__

@@ -180,6 +180,7 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None) -> RunRe
         return RunResult("failed", out, {}, str(exc))
     keys.update(resume_key(cfg_hash, provenance.code_version(), input_fingerprint(seq.source_files)))
     start: dict[str, Any] | None = None  # the checkpoint a resumed run starts from
+    level = logging.INFO  # of the redo line: a warning when a checkpoint was there but unusable
     if conf.resume:
         reason = redo_reason(stored, keys)
         if reason is None:
@@ -188,11 +189,11 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None) -> RunRe
         if stored is not None and stored.get("status") == "interrupted" and ckpt.exists(out):
             start, why = ckpt.find(out, keys, flushed_rows(out))
             if start is None:
-                reason = f"its checkpoint was not used: {why}; starting over from frame 0"
+                reason, level = f"its checkpoint was not used: {why}; starting over from frame 0", logging.WARNING
         if start is not None:
             log.info("resuming %s from frame %d (checkpoint of keyframe %d)", out, start["frame"], start["keyframe"])
         elif stored is not None:
-            log.info("redoing %s: %s", out, reason)
+            log.log(level, "redoing %s: %s", out, reason)
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
     record["checkpoint"] = {"every": conf.checkpoint.every, "written": 0, "mib_last": None, "write_s_total": 0.0,
                             "resumed_from_frames": []}  # fmt: skip
