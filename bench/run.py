@@ -202,8 +202,8 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None) -> RunRe
     else:  # rows written after the checkpoint go; the loop appends from there
         ckpt.truncate_rows(out / TRAJ_EST, 1, start["rows"]["traj"])
         ckpt.truncate_rows(out / schema.KEYFRAMES_FILE, 1, start["rows"]["keyframes"])
-        record["checkpoint"] = {**start["stats"], "resumed_from_frames": [*start["stats"]["resumed_from_frames"],
-                                                                          start["frame"]]}  # fmt: skip
+        record["checkpoint"] = {**start["stats"], "every": conf.checkpoint.every,
+                                "resumed_from_frames": [*start["stats"]["resumed_from_frames"], start["frame"]]}
     write_json(metrics_path, record)
     if start is None:
         ckpt.remove(out)  # a previous run's checkpoints: the record they belonged to is replaced now
