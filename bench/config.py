@@ -20,6 +20,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 
 from bench import registry
+from bench.checkpoint import CheckpointConfig
 from bench.conf import group_files
 from bench.datasets import GROUP as DATASET_GROUP
 from bench.datasets import schema
@@ -100,7 +101,8 @@ class RunConfig:
     # frames excluded from FPS (the first frame only initialises the map)
     warmup_frames: int = setting(1, "int", lo=0)
     progress: bool = True  # progress bar with frame i/N, Gaussian count, fps
-    resume: bool = True  # skip a run whose out dir holds finished results of the same config hash
+    resume: bool = True  # skip a finished run of the same config, code and inputs; continue an interrupted one
+    checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)  # bench/checkpoint.py
     out_dir: str | None = setting(None, "str", nullable=True)  # None = Hydra's output dir
     sweep_name: str = setting("default", "str")  # multirun/<sweep_name>
 

@@ -20,7 +20,8 @@ from bench.datasets import Sequence, canonical_seq
 from bench.errors import BenchError
 from bench.resume import input_fingerprint, resume_key
 
-NOT_HASHED = ("progress", "out_dir", "resume")  # keys that change how a run is shown or stored, not what it computes
+# keys that change how a run is shown or stored (or checkpointed), not what it computes
+NOT_HASHED = ("progress", "out_dir", "resume", "checkpoint")
 
 
 def run_keys(cfg: RunConfig | Mapping[str, Any], tree: Mapping[str, Any] | None = None,

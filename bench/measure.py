@@ -431,6 +431,10 @@ class PhaseTimer:
         """How many times each phase ran."""
         return dict(self._counts)
 
+    def restore(self, totals_s: dict[str, float], counts: dict[str, int]) -> None:
+        """Continue from the totals of a run resumed from a checkpoint."""
+        self._totals_s, self._counts = dict(totals_s), dict(counts)
+
     def reset(self) -> None:
         self._totals_s.clear()
         self._counts.clear()

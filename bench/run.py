@@ -20,6 +20,8 @@ import dataclasses
 import json
 import logging
 import math
+import os
+import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,6 +31,7 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
+from bench import checkpoint as ckpt
 from bench import provenance, schema
 from bench.conf import config_files
 from bench.config import RunConfig
@@ -42,10 +45,10 @@ from bench.metrics.trajectory import TumAppender
 from bench.progress import Phase
 from bench.record import is_leftover, owner, record_failed, write_json
 from bench.resume import redo_reason
-from bench.signals import Interrupted, deferred_signals, raise_on_signals
+from bench.signals import Interrupted, Preemption, deferred_signals, held_preemption, raise_on_signals
 from bench.slam.se3 import inverse
 from bench.slam.system import FrameResult, System
-from bench.strategy import Strategy
+from bench.strategy import CheckedStrategy, Strategy
 from bench.typed import plain
 from bench.validate import Built, validate
 from bench.viz import PruneViz
@@ -53,6 +56,11 @@ from bench.viz import PruneViz
 log = logging.getLogger(__name__)
 
 TRAJ_EST = "traj_est.txt"
+
+# test-only: "FRAME:SIGNAL" makes a run that started at frame 0 send itself SIGNAL once frame FRAME's
+# rows (and checkpoint, if that frame wrote one) are on disk; how the tests stop a run at a known point
+TEST_SIGNAL_ENV = "POCKETBENCH_TEST_SIGNAL_AT"
+
 
 @dataclass
 class RunResult:
@@ -131,23 +139,43 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: B
         write_json(metrics_path, record)
         return RunResult("failed", out, {}, str(exc))
     keys = record["run"] = run_keys(conf, built.tree, seq)
+    start: dict[str, Any] | None = None  # the checkpoint a resumed run starts from
+    level = logging.INFO  # of the redo line: a warning when a checkpoint was there but unusable
     if conf.resume:
         reason = redo_reason(stored, keys)
         if reason is None:
             log.info("skipping %s: completed results of the same config, code and inputs exist", out)
             return RunResult(stored["status"], out, stored.get("metrics", {}), stored.get("error"), skipped=True)
-        if stored is not None:
-            log.info("redoing %s: %s", out, reason)
+        if stored is not None and stored.get("status") == "interrupted" and ckpt.exists(out):
+            start, why = ckpt.find(out, keys, flushed_rows(out))
+            if start is None:
+                reason, level = f"its checkpoint was not used: {why}; starting over from frame 0", logging.WARNING
+        if start is not None:
+            log.info("resuming %s from frame %d (checkpoint of keyframe %d)", out, start["frame"], start["keyframe"])
+        elif stored is not None:
+            log.log(level, "redoing %s: %s", out, reason)
     (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-    (out / TRAJ_EST).unlink(missing_ok=True)
+    record["checkpoint"] = {"every": conf.checkpoint.every, "written": 0, "mib_last": None, "write_s_total": 0.0,
+                            "resumed_from_frames": []}  # fmt: skip
+    if start is None:
+        (out / TRAJ_EST).unlink(missing_ok=True)
+    else:  # rows written after the checkpoint go; the loop appends from there
+        ckpt.truncate_rows(out / TRAJ_EST, 1, start["rows"]["traj"])
+        ckpt.truncate_rows(out / schema.KEYFRAMES_FILE, 1, start["rows"]["keyframes"])
+        record["checkpoint"] = {**start["stats"], "every": conf.checkpoint.every,
+                                "resumed_from_frames": [*start["stats"]["resumed_from_frames"], start["frame"]]}
     write_json(metrics_path, record)
+    if start is None:
+        ckpt.remove(out)  # a previous run's checkpoints: the record they belonged to is replaced now
     stop: Interrupted | None = None
+    preempt = Preemption()
     try:
-        with raise_on_signals(), repeatable(conf.seed, conf.threads, conf.determinism, device) as det:
+        with raise_on_signals(), held_preemption() as preempt, \
+                repeatable(conf.seed, conf.threads, conf.determinism, device) as det:
             record["determinism"] = det
             record["provenance"] = provenance.collect(device)  # after the thread count is set
             record["provenance"]["config_files"] = _config_files()
-            status, error, metrics, stop = _execute(built, out, device, record, seq)
+            status, error, metrics, stop = _execute(built, out, device, record, seq, start, preempt)
     except Interrupted as exc:  # outside the frame loop (build, refinement, evaluation): keep what is there
         n_done = record["metrics"].get("num_frames", 0)
         status, error, metrics, stop = "interrupted", f"{exc} after {n_done} frames", record["metrics"], exc
@@ -162,7 +190,13 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: B
         record.update(status=status, error=error, metrics=metrics)
         record.pop("owner")
         write_json(metrics_path, record)
+        if status != "interrupted":
+            ckpt.remove(out)  # finished (or failed on its data): a rerun never resumes it
     if stop is not None:
+        if preempt.signum is not None and preempt.signum == stop.signum:
+            log.warning("%s: preempted after %d frames; checkpoint written, the launcher requeues the job",
+                        out, metrics.get("num_frames", 0))
+            preempt.hand_over()  # the launcher's own handler (submitit: requeue, then exit)
         raise Interrupted(stop.signum, f"{error}; partial results in {out}")
     return RunResult(status, out, metrics, error)
 
@@ -172,6 +206,9 @@ def _config_files() -> dict[str, str] | None:
     from hydra.core.hydra_config import HydraConfig
 
     return config_files(HydraConfig.get().runtime.choices) if HydraConfig.initialized() else None
+def flushed_rows(out: Path) -> dict[str, int]:
+    """Data rows on disk in the files a checkpoint counts (each has one header line)."""
+    return {"traj": ckpt.data_rows(out / TRAJ_EST, 1), "keyframes": ckpt.data_rows(out / schema.KEYFRAMES_FILE, 1)}
 
 
 def _previous(out: Path) -> dict[str, Any] | None:
@@ -195,7 +232,8 @@ def _previous(out: Path) -> dict[str, Any] | None:
     return stored
 
 
-def _execute(built: Built, out: Path, device: torch.device, record: dict[str, Any], seq: Sequence):
+def _execute(built: Built, out: Path, device: torch.device, record: dict[str, Any], seq: Sequence,
+             start: dict[str, Any] | None = None, preempt: Preemption | None = None):
     t_start = time.perf_counter()
     cfg = built.config
     parts = build(cfg, device, seq, built)
@@ -203,7 +241,9 @@ def _execute(built: Built, out: Path, device: torch.device, record: dict[str, An
     if cfg.viz.pruning:
         parts.viz = parts.system.on_prune = PruneViz(parts.system, out, cfg.viz.every, describe(parts.keys))
     record["metrics"] = metrics = {"num_frames": 0, "num_keyframes": 0}
-    drive = drive_frames(cfg, parts, out, record)
+    if start is not None:
+        restore(parts, start)
+    drive = drive_frames(cfg, parts, out, record, start, preempt)
     with deferred_signals() if drive.stop is not None else contextlib.nullcontext():
         metrics.update(finish(cfg, parts, drive, out, device))
         metrics["wall_s"] = round(time.perf_counter() - t_start, 3)  # the whole run: loading to figures
@@ -266,9 +306,69 @@ class Drive:
     warmup_s: float = 0.0  # the warm-up frames' time, left out of loop_s and fps
 
 
-def drive_frames(cfg: RunConfig, parts: Parts, out: Path, record: dict[str, Any]) -> Drive:
+def restore(parts: Parts, start: dict[str, Any]) -> None:
+    """Put a checkpoint's state into freshly built parts: the system, the strategy, the global generators."""
+    parts.system.load_state_dict(start["system"], lambda i: parts.seq[i])
+    vars(_inner(parts.strategy)).update(start["strategy"])
+    done = json.loads(start["drive"]["json"])
+    parts.timer.restore(done["phase_s"], done["phase_n"])
+    ckpt.set_global_rng_state(start["rng"])  # last: nothing after it draws before the next frame
+
+
+def _inner(strategy: Strategy) -> Strategy:
+    return strategy.inner if isinstance(strategy, CheckedStrategy) else strategy
+
+
+def write_checkpoint(cfg: RunConfig, parts: Parts, drive: Drive, out: Path, record: dict[str, Any],
+                     between: dict[str, Any]) -> None:
+    """The loop's whole state after the frames done so far (see ``bench.checkpoint``); its cost goes into
+    metrics.json's ``checkpoint`` block, outside the SLAM time and the metrics a resume must repeat."""
+    stats = record["checkpoint"]
+    n_done = len(drive.timestamps_s)
+    payload = {
+        "key": {k: record["run"][k] for k in ("config_hash", "code_version", "inputs")},
+        "frame": n_done,
+        "keyframe": drive.windows[-1]["kf"] if drive.windows else -1,
+        "system": parts.system.state_dict(),
+        "strategy": dict(vars(_inner(parts.strategy))),
+        # per-frame lists as one tensor, rows as one json string: torch.save pays per object
+        "drive": {"timestamps_s": torch.tensor(drive.timestamps_s, dtype=torch.float64),
+                  "gt_c2w": _stack_all(drive.gt_c2w),
+                  "json": json.dumps({"windows": drive.windows, "loop_s": drive.loop_s, "warmup_s": drive.warmup_s,
+                                      "between": between, "phase_s": parts.timer.totals(),
+                                      "phase_n": parts.timer.counts()})},
+        "rng": ckpt.global_rng_state(),
+        "rows": {"traj": n_done, "keyframes": len(drive.windows)},
+        "stats": {**stats, "written": stats["written"] + 1},  # as they will be once this one is on disk
+    }  # fmt: skip
+    cost = ckpt.save(out, payload, cfg.checkpoint.keep)
+    stats.update(written=stats["written"] + 1, mib_last=cost.mib,
+                 write_s_total=round(stats["write_s_total"] + cost.write_s, 4))
+    log.debug("%s: checkpoint at frame %d (keyframe %d): %.3f MiB in %.4f s", out, n_done, payload["keyframe"],
+              cost.mib, cost.write_s)
+
+
+def _stack_all(mats: list[torch.Tensor | None]) -> torch.Tensor | list[torch.Tensor | None]:
+    """[F, 4, 4] when every frame has one, else the list as it is (frames without ground truth)."""
+    return torch.stack(mats) if mats and all(m is not None for m in mats) else mats
+
+
+def _test_signal_frame() -> tuple[int, int] | None:
+    spec = os.environ.get(TEST_SIGNAL_ENV)
+    if not spec:
+        return None
+    frame, _, name = spec.partition(":")
+    return int(frame), int(getattr(signal, "SIG" + (name or "KILL")))
+
+
+def drive_frames(cfg: RunConfig, parts: Parts, out: Path, record: dict[str, Any],
+                 start: dict[str, Any] | None = None, preempt: Preemption | None = None) -> Drive:
     """Feed every frame to the system; one flushed keyframes.csv row per keyframe window and one
-    flushed traj_est.txt line per frame, so a stopped run keeps what it tracked."""
+    flushed traj_est.txt line per frame, so a stopped run keeps what it tracked.
+
+    ``start``: a checkpoint to continue from (its frames and rows are already done and on disk).
+    ``preempt``: a held preemption signal ends the loop at the next frame boundary, with a checkpoint.
+    """
     system, device = parts.system, parts.system.device
     metrics = record["metrics"]
     drive = Drive()
@@ -277,13 +377,27 @@ def drive_frames(cfg: RunConfig, parts: Parts, out: Path, record: dict[str, Any]
     # prune.every=frame: what the frames since the last keyframe pruned
     between: dict[str, Any] = dict.fromkeys(
         ("n_pruned", "n_candidates", "prune_s", "diag_s", *schema.PRUNE_COUNT_COLUMNS), 0)
+    first = 0
+    if start is not None:
+        done = json.loads(start["drive"]["json"])  # floats round-trip json exactly
+        drive.timestamps_s = start["drive"]["timestamps_s"].tolist()
+        drive.gt_c2w = list(start["drive"]["gt_c2w"])
+        drive.windows, drive.loop_s, drive.warmup_s = done["windows"], done["loop_s"], done["warmup_s"]
+        between = done["between"]
+        first = start["frame"]
+        metrics.update(num_frames=first, num_keyframes=len(drive.windows))
+        bar.update(first)
+    test_signal = _test_signal_frame() if start is None else None
+    every = cfg.checkpoint.every
     parts.probe.start_window()
-    with open(out / schema.KEYFRAMES_FILE, "w", newline="") as fh, TumAppender(out / TRAJ_EST) as traj:
+    with open(out / schema.KEYFRAMES_FILE, "a" if start else "w", newline="") as fh, \
+            TumAppender(out / TRAJ_EST, append=start is not None) as traj:
         writer = csv.DictWriter(fh, fieldnames=schema.KEYFRAME_COLUMNS)
-        writer.writeheader()
-        fh.flush()
+        if start is None:
+            writer.writeheader()
+            fh.flush()
         try:
-            for i in range(parts.n_frames):
+            for i in range(first, parts.n_frames):
                 frame = parts.seq[i]  # loading is not SLAM time
                 _sync(device)
                 t0 = time.perf_counter()
@@ -309,9 +423,17 @@ def drive_frames(cfg: RunConfig, parts: Parts, out: Path, record: dict[str, Any]
                     if cfg.save_maps == "every_keyframe":
                         save_snapshot(out, res.keyframe_index, system.map)
                     metrics["num_keyframes"] = len(drive.windows)
+                    if every and (res.keyframe_index + 1) % every == 0:
+                        write_checkpoint(cfg, parts, drive, out, record, between)
                     write_json(out / schema.METRICS_FILE, record)  # still running; counts so far, for a later reader
                     parts.probe.start_window()
                 bar.update(1, gaussians=len(system.map), fps=f"{(i + 1 - warmup) / max(drive.loop_s, 1e-9):.2f}")
+                if test_signal is not None and test_signal[0] == i:
+                    os.kill(os.getpid(), test_signal[1])
+                if preempt is not None and preempt.signum is not None:  # held since it came: stop here, resumable
+                    write_checkpoint(cfg, parts, drive, out, record, between)
+                    write_json(out / schema.METRICS_FILE, record)
+                    raise Interrupted(preempt.signum)
         except TrackingLost as exc:
             drive.status, drive.error = "lost", str(exc)
             bar.close(note=f"lost: {exc}")

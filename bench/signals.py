@@ -8,11 +8,13 @@ while the partial record is being written is ignored, so the record is not cut i
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from types import FrameType
+from typing import Any
 
 HANDLED = (signal.SIGINT, signal.SIGTERM)
 
@@ -60,3 +62,48 @@ def deferred_signals() -> Iterator[list[int]]:
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
+
+
+def preemption_signal() -> signal.Signals:
+    """The signal a launcher sends before a timeout or preemption: submitit's (``SUBMITIT_PREEMPT_SIGNAL``, USR2)."""
+    return signal.Signals[f"SIG{os.environ.get('SUBMITIT_PREEMPT_SIGNAL', 'USR2')}"]
+
+
+class Preemption:
+    """A preemption signal held for the frame loop; ``hand_over`` passes it on to the launcher's handler."""
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self._handler: Callable[[int, FrameType | None], Any] | None = None
+
+    def hand_over(self) -> None:
+        if self.signum is not None and self._handler is not None:
+            self._handler(self.signum, None)
+
+
+@contextmanager
+def held_preemption() -> Iterator[Preemption]:
+    """Within the block, a launcher's preemption signal is noted, not acted on, so the frame loop can
+    finish its frame and write a checkpoint first. Why: submitit's handler requeues the job and exits
+    at once, from wherever the signal lands (mid-frame, before any checkpoint of that point). Engaged
+    only where a Python handler for the signal is installed (submitit's); otherwise a no-op."""
+    held = Preemption()
+    try:
+        sig = preemption_signal()
+    except KeyError:
+        yield held
+        return
+    previous = signal.getsignal(sig)
+    if threading.current_thread() is not threading.main_thread() or not callable(previous):
+        yield held
+        return
+    held._handler = previous
+
+    def note(signum: int, frame: FrameType | None) -> None:
+        held.signum = signum
+
+    signal.signal(sig, note)
+    try:
+        yield held
+    finally:
+        signal.signal(sig, previous)

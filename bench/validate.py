@@ -13,6 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from bench.checkpoint import CheckpointConfig
 from bench.config import EvalConfig, MemoryConfig, RunConfig, VizConfig, to_run_config
 from bench.errors import BenchError, ConfigError
 from bench.strategy import CheckedStrategy, PruneConfig, load_strategy, strategy_class, unknown_params
@@ -41,7 +42,8 @@ def validate(cfg: Any) -> Built:
         raise ConfigError(f"unknown setting {', '.join(repr(u) for u in sorted(set(tree) - known))}; "
                           f"expected one of: {', '.join(sorted(known))}")
     check_rules(tree, "", RunConfig)  # the run's own settings first: a dataset setting may interpolate one
-    for group, cls in (("prune", PruneConfig), ("memory", MemoryConfig), ("eval", EvalConfig), ("viz", VizConfig)):
+    for group, cls in (("prune", PruneConfig), ("memory", MemoryConfig), ("eval", EvalConfig), ("viz", VizConfig),
+                       ("checkpoint", CheckpointConfig)):
         if isinstance(tree.get(group), Mapping):  # +eval.evry=2 got past composition: say it in these words
             unknown_keys(group, cls, tree[group])
     ds = tree.get("dataset")

@@ -150,10 +150,12 @@ class TumAppender:
     frame it tracked, in the same format ``write_tum`` produces.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, append: bool = False) -> None:
+        """``append``: continue a file this class wrote (a resumed run), without a second header."""
         self.path = Path(path)
-        self._fh = self.path.open("w")
-        self._fh.write(TUM_HEADER)
+        self._fh = self.path.open("a" if append else "w")
+        if not append:
+            self._fh.write(TUM_HEADER)
         self._sync()
 
     def append(self, timestamp_s: float, c2w: np.ndarray) -> None:

@@ -16,6 +16,7 @@ import random
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 import torch
@@ -229,10 +230,15 @@ class System:
         return self._timer.phase(name) if self._timer is not None else contextlib.nullcontext()
 
     # ------------------------------------------------------------------ per frame
-    def process(self, frame: Frame) -> FrameResult:
+    def observe(self, frame: Frame) -> tuple[torch.Tensor, torch.Tensor]:
+        """The frame as the system uses it: rgb [H, W, 3] and depth [H, W] (0 where invalid) on the device."""
         rgb = frame.rgb.to(self.device)
         depth = frame.depth_m.to(self.device)
         depth = torch.where((depth > 0) & (depth < self.cfg.max_depth_m), depth, torch.zeros_like(depth))
+        return rgb, depth
+
+    def process(self, frame: Frame) -> FrameResult:
+        rgb, depth = self.observe(frame)
         t0 = time.perf_counter()
         self._gray = to_gray_u8(rgb) if self.cfg.tracking_init == "flow_pnp" else None  # [H, W] uint8
         if not self.poses:
@@ -255,11 +261,7 @@ class System:
                 result.prune_s = time.perf_counter() - t1
         else:
             kf_idx = len(self.keyframes)
-            # the store holds its images in torch's allocator, as on a GPU (where .to() copies): on CPU
-            # ``rgb`` may be the dataset's numpy-backed frame (synthetic), a storage torch did not allocate
-            # (not resizable), which the live-tensor peak would never see
-            kf_rgb = rgb if rgb.untyped_storage().resizable() else rgb.clone()
-            self.keyframes.append(_Keyframe(frame.index, kf_rgb, depth, w2c))
+            self.keyframes.append(_Keyframe(frame.index, _torch_owned(rgb), depth, w2c))
             with self._phase("mapping"):
                 result.n_added = self._densify(rgb, depth, w2c, kf_idx)
                 result.diag["n_reseeded_holes"] = self._reseeded
@@ -276,6 +278,76 @@ class System:
             result.map_s, result.prune_s = t2 - t1, t3 - t2
             self.frames_since_kf = 0
         return result
+
+    # ------------------------------------------------------------------ checkpoints
+    def state_dict(self) -> dict[str, Any]:
+        """Everything that decides the next frames, as tensors and plain values (``torch.load(weights_only=True)``
+        reads it back). Keyframe images are not stored: ``load_state_dict`` re-reads them from the sequence
+        by index, which is what keeps a checkpoint small (a KITTI keyframe is ~7 MiB of float images).
+        Per-frame lists go in as one tensor or string each: ``torch.save`` pays per object, and a long
+        drive has thousands of poses."""
+        g = self.map
+        moments = {}
+        for group in g.optimizer.param_groups:
+            st = g.optimizer.state.get(group["params"][0])
+            if st:
+                moments[group["name"]] = dict(st)
+        prev = None if self._prev_obs is None else [torch.from_numpy(self._prev_obs[0]),
+                                                    torch.from_numpy(self._prev_obs[1])]
+        return {
+            "params": {k: p.detach() for k, p in g.params.items()},  # no copies: a checkpoint must not raise the peak
+            "requires_grad": {k: p.requires_grad for k, p in g.params.items()},
+            "moments": moments,
+            "birth_kf": g.birth_kf,
+            "state": dict(g.state),
+            "keyframes": {"index": torch.tensor([kf.index for kf in self.keyframes], dtype=torch.long),
+                          "w2c": _stack([kf.w2c for kf in self.keyframes])},  # [K], [K, 4, 4]
+            "poses": _stack(self.poses),  # [F, 4, 4]
+            "frames_since_kf": self.frames_since_kf,
+            "bad_frames": self._bad_frames,
+            "init_source": ",".join(self.init_source),
+            "prev_obs": prev,
+            "rng": _py_rng_state(self._rng),
+            "densify_rng": _np_gen_state(self._densify_rng),
+            "ransac_rng": _np_gen_state(self._ransac_rng),
+            # prune diagnostics: the opened pixels' world points awaiting the next densification [M, 3]
+            "holes": torch.from_numpy(np.concatenate(self._holes) if self._holes else np.zeros((0, 3))),
+            "track_log": torch.tensor(self.track_log, dtype=torch.float64).reshape(-1, 3),  # [F, 3]
+        }
+
+    def load_state_dict(self, sd: dict[str, Any], frame_at: Callable[[int], Frame]) -> None:
+        """Undo ``state_dict``: the map with its Adam moments, the keyframe store (images from
+        ``frame_at(index)``), the tracking state and the generators."""
+        g = self.map
+        if set(sd["params"]) != set(g.params):
+            raise ValueError(f"map parameters: expected {sorted(g.params)}, found {sorted(sd['params'])}")
+        g.optimizer.state.clear()
+        for group in g.optimizer.param_groups:
+            name = group["name"]
+            new = torch.nn.Parameter(sd["params"][name].to(self.device), requires_grad=sd["requires_grad"][name])
+            group["params"][0] = new
+            g.params[name] = new
+            if name in sd["moments"]:
+                # Adam keeps "step" on the CPU (unless capturable); the moments live with the parameter
+                g.optimizer.state[new] = {k: v if k == "step" else v.to(self.device)
+                                          for k, v in sd["moments"][name].items()}
+        g.birth_kf = sd["birth_kf"].to(self.device)
+        g.state = {k: v.to(self.device) for k, v in sd["state"].items()}
+        self.keyframes = []
+        for index, w2c in zip(sd["keyframes"]["index"].tolist(), sd["keyframes"]["w2c"], strict=True):
+            rgb, depth = self.observe(frame_at(index))
+            self.keyframes.append(_Keyframe(index, _torch_owned(rgb), depth, w2c.to(self.device)))
+        self.poses = [p.to(self.device) for p in sd["poses"]]
+        self.frames_since_kf, self._bad_frames = sd["frames_since_kf"], sd["bad_frames"]
+        self.init_source = sd["init_source"].split(",") if sd["init_source"] else []
+        prev = sd["prev_obs"]
+        self._prev_obs = None if prev is None else (prev[0].numpy(), prev[1].numpy())
+        self._rng.setstate(_py_rng_from(sd["rng"]))
+        self._densify_rng.bit_generator.state = sd["densify_rng"]
+        self._ransac_rng.bit_generator.state = sd["ransac_rng"]
+        holes = sd["holes"].numpy()
+        self._holes = [holes] if len(holes) else []
+        self.track_log = [(int(f), c, s) for f, c, s in sd["track_log"].tolist()]
 
     def _is_keyframe(self, w2c: torch.Tensor) -> bool:
         if not self.keyframes:
@@ -612,3 +684,28 @@ class System:
     def keyframe_store_bytes(self) -> int:
         """Exact bytes of the keyframe store: every keyframe's colour, depth and pose."""
         return int(sum(t.numel() * t.element_size() for kf in self.keyframes for t in (kf.rgb, kf.depth, kf.w2c)))
+
+
+def _torch_owned(rgb: torch.Tensor) -> torch.Tensor:
+    """The keyframe store holds its images in torch's allocator, as on a GPU (where .to() copies): on CPU
+    ``rgb`` may be the dataset's numpy-backed frame (synthetic), a storage torch did not allocate (not
+    resizable), which the live-tensor peak would never see."""
+    return rgb if rgb.untyped_storage().resizable() else rgb.clone()
+
+
+def _stack(mats: list[torch.Tensor]) -> torch.Tensor:
+    return torch.stack(mats) if mats else torch.empty(0, 4, 4)
+
+
+def _py_rng_state(rng: random.Random) -> list:
+    """``random.Random`` state as plain values and one tensor (what ``torch.load(weights_only=True)`` reads)."""
+    version, internal, gauss = rng.getstate()
+    return [version, torch.tensor(internal, dtype=torch.int64), gauss]  # 625 words < 2**32
+
+
+def _py_rng_from(state: list) -> tuple:
+    return (state[0], tuple(state[1].tolist()), state[2])
+
+
+def _np_gen_state(gen: np.random.Generator) -> dict[str, Any]:
+    return gen.bit_generator.state  # a dict of str and int: loads with weights_only=True
