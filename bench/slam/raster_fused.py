@@ -35,9 +35,7 @@ os.environ.setdefault("NUMBA_THREADING_LAYER", "workqueue")
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-from llvmlite import ir as llvm_ir  # noqa: E402
-from numba import njit, prange, types  # noqa: E402
-from numba.extending import intrinsic  # noqa: E402
+from numba import njit, prange  # noqa: E402
 
 TILE = 16
 _F = np.float32
@@ -49,9 +47,7 @@ LN255 = _F(math.log(255.0))
 # dropped, which changes no float32 sum
 COVERAGE_POWER_MIN = _F(-20.0)
 N_FEAT = 4  # r, g, b, depth
-# the forward looks whether every pixel of a tile has saturated (and stops) once per this many pairs:
-# a pair after saturation changes nothing, so the check's period changes no result
-SATURATION_CHECK = 16
+PROJECT_BLOCK = 256  # Gaussians per block of the projection's backward (one set of scratch matrices each)
 
 
 @njit(cache=True)
@@ -124,37 +120,6 @@ def _power_min(o):  # pragma: no cover - compiled
     return -LN255 - np.log(o) - _F(1e-3)
 
 
-@intrinsic
-def _bits_to_f32(typingctx, bits):  # pragma: no cover - compiled
-    """The float32 whose bit pattern is the int32 ``bits`` (a bitcast, which LLVM vectorises)."""
-    sig = types.float32(types.int32)
-
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], llvm_ir.FloatType())
-
-    return sig, codegen
-
-
-@njit(cache=True, inline="always", fastmath=True)
-def _exp(x):  # pragma: no cover - compiled
-    """float32 exp(x) for x <= 0 as 2^n p(f) (Cephes' expf polynomial), max relative error ~1e-6.
-
-    np.exp compiles to a scalar libm call (pip's llvmlite has no vector maths library), which keeps
-    every loop around it scalar; this one is plain arithmetic, so a 16-pixel row runs as one vector.
-    """
-    x = min(max(x, _F(-87.0)), _F(0.0))
-    n = np.floor(x * _F(1.44269504) + _F(0.5))
-    f = x - n * _F(0.693359375) + n * _F(2.12194440e-4)
-    p = _F(1.9875691500e-4)
-    p = p * f + _F(1.3981999507e-3)
-    p = p * f + _F(8.3334519073e-3)
-    p = p * f + _F(4.1665795894e-2)
-    p = p * f + _F(1.6666665459e-1)
-    p = p * f + _F(5.0000001201e-1)
-    p = p * f * f + f + _F(1.0)
-    return p * _bits_to_f32(np.int32(n + _F(127.0)) << np.int32(23))
-
-
 @njit(cache=True)
 def _schedule(tile_start, n_threads):  # pragma: no cover - compiled
     """Tiles dealt to threads by cost (pairs per tile, largest first, round robin), so that the
@@ -176,88 +141,29 @@ def _schedule(tile_start, n_threads):  # pragma: no cover - compiled
     return order, bounds
 
 
-# The row loops below are written for LLVM's loop vectoriser: the trip count is a run-time value (a
-# constant 16 would be unrolled before vectorising), no scalar reduction runs across the lanes, and
-# no store writes back either its new or its old value (that becomes a masked store, which is slow
-# on AMD cores); a lane that does not take part adds zero or multiplies by one instead.
-
-
-@njit(cache=True, fastmath=True)
-def _forward_rows(nt, tl, a0, a1, a2, a3, lk, dn, hl, wb, xi, xs, bx0, bx1, by0, by1, y0,
-                  mx, my, a, b, c, o, p_min, f0, f1, f2, f3, kl):  # pragma: no cover - compiled
-    """One Gaussian over the rows [by0, by1) of a tile, lanes masked to its box columns [bx0, bx1)."""
-    m1 = np.int32(-1)
-    for y in range(by0, by1):
-        dy = _F(y) - my
-        yy = y - y0
-        for i in range(nt):
-            dx = xs[i] - mx
-            power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
-            raw = o * _exp(power)
-            alpha = min(raw, ALPHA_MAX)
-            tp = tl[yy, i]
-            test_t = tp * (_F(1.0) - alpha)
-            ok = (xi[i] >= bx0) & (xi[i] < bx1) & (dn[yy, i] == 0) & (power >= p_min) & (raw >= ALPHA_MIN)
-            use = ok & (test_t >= T_MIN)
-            au = alpha * (_F(1.0) if use else _F(0.0))
-            w = au * tp
-            a0[yy, i] += w * f0
-            a1[yy, i] += w * f1
-            a2[yy, i] += w * f2
-            a3[yy, i] += w * f3
-            tl[yy, i] = tp * (_F(1.0) - au)
-            lk[yy, i] = max(lk[yy, i], kl if use else m1)
-            dn[yy, i] |= np.int32(1) if ok & (test_t < T_MIN) else np.int32(0)
-            hl[yy, i] += np.int32(1) if use else np.int32(0)
-            wb[yy, i] = w
-
-
 @njit(parallel=True, cache=True, fastmath=True)
 def _forward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x, stats, order, bounds,
              acc, t_final, last, pair_cov, pair_hits, pair_maxw):  # pragma: no cover - compiled
     """Front-to-back compositing per tile; fills acc [H*W, 4], t_final [H*W], last [H*W] (pair index).
 
-    Each Gaussian of a tile's list updates whole rows of the tile (vectors over its pixels), masked
-    to its 1/255 box; a pixel's state lives in tile-local arrays until the tile is done. With
-    ``stats`` it also fills, per pair, the coverage sum over the tile, the pixels contributed to and
-    the largest blending weight.
+    With ``stats`` it also fills, per pair, the coverage sum over the tile, the pixels contributed to
+    and the largest blending weight.
     """
     for th in prange(bounds.shape[0] - 1):
-        tl = np.empty((TILE, TILE), np.float32)  # transmittance
-        a0 = np.empty((TILE, TILE), np.float32)  # accumulated r, g, b, depth
-        a1 = np.empty((TILE, TILE), np.float32)
-        a2 = np.empty((TILE, TILE), np.float32)
-        a3 = np.empty((TILE, TILE), np.float32)
-        wb = np.zeros((TILE, TILE), np.float32)  # the visiting Gaussian's blending weights
-        lk = np.empty((TILE, TILE), np.int32)  # last contributor, as an index into the tile's list
-        dn = np.empty((TILE, TILE), np.int32)  # 1 once T would fall below T_MIN
-        hl = np.empty((TILE, TILE), np.int32)  # pixels the visiting Gaussian contributed to, per lane
-        xs = np.empty(TILE, np.float32)
-        xi = np.empty(TILE, np.int32)
         for j in range(bounds[th], bounds[th + 1]):
             t = order[j]
             x0, x1, y0, y1 = _tile_pixels(t, tiles_x, width, height)
-            nt = x1 - x0
-            for yy in range(TILE):
-                for i in range(TILE):
-                    tl[yy, i] = _F(1.0)
-                    a0[yy, i] = a1[yy, i] = a2[yy, i] = a3[yy, i] = _F(0.0)
-                    lk[yy, i] = -1
-                    dn[yy, i] = 0
-            for i in range(TILE):
-                xs[i] = _F(x0 + i)
-                xi[i] = x0 + i
-            s = tile_start[t]
-            n_pix = (x1 - x0) * (y1 - y0)
-            saturated = False
-            for k in range(s, tile_start[t + 1]):
-                if (k - s) % SATURATION_CHECK == 0 and not saturated:
-                    n_done = 0
-                    for yy in range(TILE):
-                        for i in range(TILE):
-                            n_done += dn[yy, i]
-                    saturated = n_done == n_pix
-                if saturated and not stats:
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    p = y * width + x
+                    t_final[p] = _F(1.0)
+                    last[p] = -1
+                    for ch in range(N_FEAT):
+                        acc[p, ch] = _F(0.0)
+            done = np.zeros(TILE * TILE, np.bool_)
+            n_active = (x1 - x0) * (y1 - y0)
+            for k in range(tile_start[t], tile_start[t + 1]):
+                if n_active == 0 and not stats:
                     break
                 g = gid[k]
                 mx, my = m2[g, 0], m2[g, 1]
@@ -265,21 +171,38 @@ def _forward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x, sta
                 o = opac[g]
                 hits = 0
                 maxw = _F(0.0)
-                if not saturated:
+                if n_active > 0:
                     bx0, bx1, by0, by1 = _box(mx, my, a, b, c, o, x0, x1, y0, y1)
-                    if by1 > by0:
-                        if stats:
-                            for y in range(by0, by1):
-                                for i in range(TILE):
-                                    hl[y - y0, i] = 0
-                        _forward_rows(nt, tl, a0, a1, a2, a3, lk, dn, hl, wb, xi, xs, bx0, bx1, by0, by1, y0,
-                                      mx, my, a, b, c, o, _power_min(o), feat[g, 0], feat[g, 1], feat[g, 2],
-                                      feat[g, 3], np.int32(k - s))
-                        if stats:
-                            for y in range(by0, by1):
-                                for i in range(nt):
-                                    hits += hl[y - y0, i]
-                                    maxw = max(maxw, wb[y - y0, i])
+                    p_min = _power_min(o)
+                    for y in range(by0, by1):
+                        dy = _F(y) - my
+                        for x in range(bx0, bx1):
+                            li = (y - y0) * TILE + (x - x0)
+                            if done[li]:
+                                continue
+                            dx = _F(x) - mx
+                            power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
+                            if power < p_min:  # the box's corners, outside the 1/255 ellipse: no exp needed
+                                continue
+                            raw = o * np.exp(power)
+                            if raw < ALPHA_MIN:
+                                continue
+                            alpha = min(raw, ALPHA_MAX)
+                            p = y * width + x
+                            tp = t_final[p]
+                            test_t = tp * (_F(1.0) - alpha)
+                            if test_t < T_MIN:
+                                done[li] = True
+                                n_active -= 1
+                                continue
+                            w = alpha * tp
+                            for ch in range(N_FEAT):
+                                acc[p, ch] += w * feat[g, ch]
+                            t_final[p] = test_t
+                            last[p] = k
+                            hits += 1
+                            if w > maxw:
+                                maxw = w
                 if stats:
                     pair_hits[k] = hits
                     pair_maxw[k] = maxw
@@ -294,126 +217,99 @@ def _forward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x, sta
                                 power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
                                 cov += o * np.exp(power)
                     pair_cov[k] = cov
-            for y in range(y0, y1):
-                for x in range(x0, x1):
-                    p = y * width + x
-                    yy, i = y - y0, x - x0
-                    t_final[p] = tl[yy, i]
-                    last[p] = s + lk[yy, i] if lk[yy, i] >= 0 else -1
-                    acc[p, 0], acc[p, 1], acc[p, 2], acc[p, 3] = a0[yy, i], a1[yy, i], a2[yy, i], a3[yy, i]
-
-
-@njit(cache=True, fastmath=True)
-def _backward_rows(nt, tc, lk, q0, q1, q2, q3, qt, b0, b1, b2, b3, xi, xs, bx0, bx1, by0, by1, y0,
-                   mx, my, a, b, c, o, p_min, f0, f1, f2, f3, kl):  # pragma: no cover - compiled
-    """One Gaussian over the rows [by0, by1) of a tile, back to front: its 10 gradient sums."""
-    gmx = gmy = ga = gb = gc = go = _F(0.0)
-    gf0 = gf1 = gf2 = gf3 = _F(0.0)
-    for y in range(by0, by1):
-        dy = _F(y) - my
-        yy = y - y0
-        for i in range(nt):
-            dx = xs[i] - mx
-            power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
-            gauss = _exp(power)
-            raw = o * gauss
-            alpha = min(raw, ALPHA_MAX)
-            ok = (xi[i] >= bx0) & (xi[i] < bx1) & (lk[yy, i] >= kl) & (power >= p_min) & (raw >= ALPHA_MIN)
-            okf = _F(1.0) if ok else _F(0.0)
-            inv_one_m = _F(1.0) / (_F(1.0) - alpha)
-            tcur = tc[yy, i]
-            t_before = tcur * inv_one_m
-            w = alpha * t_before * okf
-            u0, u1, u2, u3 = q0[yy, i], q1[yy, i], q2[yy, i], q3[yy, i]
-            gf0 += w * u0
-            gf1 += w * u1
-            gf2 += w * u2
-            gf3 += w * u3
-            # d acc / d alpha = f T_before - behind / (1 - alpha); d T_final / d alpha = -T_final / (1 - alpha)
-            g_alpha = (t_before * (u0 * f0 + u1 * f1 + u2 * f2 + u3 * f3)
-                       - inv_one_m * (u0 * b0[yy, i] + u1 * b1[yy, i] + u2 * b2[yy, i] + u3 * b3[yy, i] + qt[yy, i]))
-            b0[yy, i] += w * f0
-            b1[yy, i] += w * f1
-            b2[yy, i] += w * f2
-            b3[yy, i] += w * f3
-            tc[yy, i] = tcur * (inv_one_m * okf + (_F(1.0) - okf))
-            # the clamp at 0.99 passes no gradient
-            g_a = g_alpha * (_F(1.0) if ok & (raw < ALPHA_MAX) else _F(0.0))
-            go += g_a * gauss
-            g_pow = g_a * raw
-            gmx += g_pow * (a * dx + b * dy)
-            gmy += g_pow * (c * dy + b * dx)
-            ga += g_pow * (_F(-0.5) * dx * dx)
-            gc += g_pow * (_F(-0.5) * dy * dy)
-            gb += g_pow * (-dx * dy)
-    return gmx, gmy, ga, gb, gc, go, gf0, gf1, gf2, gf3
 
 
 @njit(parallel=True, cache=True, fastmath=True)
 def _backward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x, order, bounds,
               t_final, last, g_acc, g_t, pair_grad):  # pragma: no cover - compiled
-    """Per tile, its list back to front from the last contributor (3DGS's backward pass), each
-    Gaussian over whole rows of its box as in ``_forward``.
+    """Per pixel, back to front from its last contributor (3DGS's backward pass).
 
     pair_grad [P, 10]: d/d(mean2d x, y), d/d(conic a, b, c), d/d opacity, d/d features (4) of the
     pair's Gaussian, summed over the tile's pixels in a fixed order.
     """
     for th in prange(bounds.shape[0] - 1):
-        tc = np.empty((TILE, TILE), np.float32)  # transmittance in front of the Gaussian being visited
-        lk = np.empty((TILE, TILE), np.int32)
-        q0 = np.empty((TILE, TILE), np.float32)  # dL/d acc per pixel
-        q1 = np.empty((TILE, TILE), np.float32)
-        q2 = np.empty((TILE, TILE), np.float32)
-        q3 = np.empty((TILE, TILE), np.float32)
-        qt = np.empty((TILE, TILE), np.float32)  # dL/dT_final * T_final
-        # features accumulated behind the visited Gaussian (sum of w_i f_i over later contributors)
-        b0 = np.empty((TILE, TILE), np.float32)
-        b1 = np.empty((TILE, TILE), np.float32)
-        b2 = np.empty((TILE, TILE), np.float32)
-        b3 = np.empty((TILE, TILE), np.float32)
-        xs = np.empty(TILE, np.float32)
-        xi = np.empty(TILE, np.int32)
         for j in range(bounds[th], bounds[th + 1]):
             t = order[j]
             x0, x1, y0, y1 = _tile_pixels(t, tiles_x, width, height)
-            nt = x1 - x0
             s, e = tile_start[t], tile_start[t + 1]
             for k in range(s, e):
-                for m in range(10):
-                    pair_grad[k, m] = _F(0.0)
-            for yy in range(TILE):
-                for i in range(TILE):
-                    lk[yy, i] = -1
-                    tc[yy, i] = q0[yy, i] = q1[yy, i] = q2[yy, i] = q3[yy, i] = qt[yy, i] = _F(0.0)
-                    b0[yy, i] = b1[yy, i] = b2[yy, i] = b3[yy, i] = _F(0.0)
+                for j in range(10):
+                    pair_grad[k, j] = _F(0.0)
             k_last = -1
             for y in range(y0, y1):
                 for x in range(x0, x1):
-                    p = y * width + x
-                    yy, i = y - y0, x - x0
-                    lk[yy, i] = last[p] - s if last[p] >= 0 else -1
-                    k_last = max(k_last, last[p])
-                    tc[yy, i] = t_final[p]
-                    q0[yy, i], q1[yy, i], q2[yy, i], q3[yy, i] = g_acc[p, 0], g_acc[p, 1], g_acc[p, 2], g_acc[p, 3]
-                    qt[yy, i] = g_t[p] * t_final[p]
+                    k_last = max(k_last, last[y * width + x])
             if k_last < 0:
                 continue
-            for i in range(TILE):
-                xs[i] = _F(x0 + i)
-                xi[i] = x0 + i
+            # per pixel: transmittance in front of the Gaussian being visited, and the features
+            # accumulated behind it (sum of w_i f_i over later contributors)
+            tcur = np.empty(TILE * TILE, np.float32)
+            behind = np.zeros((TILE * TILE, N_FEAT), np.float32)
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    tcur[(y - y0) * TILE + (x - x0)] = t_final[y * width + x]
             for k in range(k_last, s - 1, -1):
                 g = gid[k]
                 mx, my = m2[g, 0], m2[g, 1]
                 a, b, c = conic[g, 0], conic[g, 1], conic[g, 2]
                 o = opac[g]
                 bx0, bx1, by0, by1 = _box(mx, my, a, b, c, o, x0, x1, y0, y1)
-                if by1 <= by0:
-                    continue
-                sums = _backward_rows(nt, tc, lk, q0, q1, q2, q3, qt, b0, b1, b2, b3, xi, xs, bx0, bx1, by0, by1,
-                                      y0, mx, my, a, b, c, o, _power_min(o), feat[g, 0], feat[g, 1], feat[g, 2],
-                                      feat[g, 3], np.int32(k - s))
-                for m in range(10):
-                    pair_grad[k, m] = sums[m]
+                p_min = _power_min(o)
+                gmx = gmy = ga = gb = gc = go = _F(0.0)
+                gf0 = gf1 = gf2 = gf3 = _F(0.0)
+                f0, f1, f2, f3 = feat[g, 0], feat[g, 1], feat[g, 2], feat[g, 3]
+                for y in range(by0, by1):
+                    dy = _F(y) - my
+                    for x in range(bx0, bx1):
+                        p = y * width + x
+                        if last[p] < k:
+                            continue
+                        dx = _F(x) - mx
+                        power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
+                        if power < p_min:  # the same test as the forward pass
+                            continue
+                        gauss = np.exp(power)
+                        raw = o * gauss
+                        if raw < ALPHA_MIN:
+                            continue
+                        alpha = min(raw, ALPHA_MAX)
+                        li = (y - y0) * TILE + (x - x0)
+                        inv_one_m = _F(1.0) / (_F(1.0) - alpha)
+                        t_before = tcur[li] * inv_one_m
+                        w = alpha * t_before
+                        q0, q1, q2, q3 = g_acc[p, 0], g_acc[p, 1], g_acc[p, 2], g_acc[p, 3]
+                        gf0 += w * q0
+                        gf1 += w * q1
+                        gf2 += w * q2
+                        gf3 += w * q3
+                        # d acc / d alpha = f T_before - behind / (1 - alpha);
+                        # d T_final / d alpha = -T_final / (1 - alpha)
+                        g_alpha = (t_before * (q0 * f0 + q1 * f1 + q2 * f2 + q3 * f3)
+                                   - inv_one_m * (q0 * behind[li, 0] + q1 * behind[li, 1] + q2 * behind[li, 2]
+                                                  + q3 * behind[li, 3] + g_t[p] * t_final[p]))
+                        behind[li, 0] += w * f0
+                        behind[li, 1] += w * f1
+                        behind[li, 2] += w * f2
+                        behind[li, 3] += w * f3
+                        tcur[li] = t_before
+                        if raw < ALPHA_MAX:  # the clamp at 0.99 passes no gradient
+                            go += g_alpha * gauss
+                            g_pow = g_alpha * raw
+                            gmx += g_pow * (a * dx + b * dy)
+                            gmy += g_pow * (c * dy + b * dx)
+                            ga += g_pow * (_F(-0.5) * dx * dx)
+                            gc += g_pow * (_F(-0.5) * dy * dy)
+                            gb += g_pow * (-dx * dy)
+                pair_grad[k, 0] = gmx
+                pair_grad[k, 1] = gmy
+                pair_grad[k, 2] = ga
+                pair_grad[k, 3] = gb
+                pair_grad[k, 4] = gc
+                pair_grad[k, 5] = go
+                pair_grad[k, 6] = gf0
+                pair_grad[k, 7] = gf1
+                pair_grad[k, 8] = gf2
+                pair_grad[k, 9] = gf3
 
 
 @njit(cache=True)
@@ -519,123 +415,132 @@ def _project_fwd(means, log_scales, quats, rc, tc, cam, width, height, near_m, t
 
 
 @njit(parallel=True, cache=True)
-def _project_bwd(means, log_scales, quats, rc, tc, cam, width, height, g_m2, g_cov, g_z,
+def _project_bwd(means, log_scales, quats, rc, tc, cam, width, height, g_m2, g_cov, g_z, gaussians,
                  g_means, g_log_scales, g_quats, g_pose):  # pragma: no cover - compiled
     """The chain rule of ``_project_fwd`` per Gaussian; g_pose [N, 12] holds each Gaussian's share of
-    d/d(Rc row-major, tc), reduced afterwards in a fixed order."""
+    d/d(Rc row-major, tc), reduced afterwards in a fixed order. Without ``gaussians`` (tracking: only
+    the pose is optimised) the gradients of means, log-scales and quaternions are left unwritten.
+
+    The small per-Gaussian matrices are allocated once per block of Gaussians: an allocation per
+    Gaussian cost more than its arithmetic."""
     fx, fy = cam[0], cam[1]
     lim_x, lim_y = _jacobian_limits(fx, fy, width, height)
-    for i in prange(means.shape[0]):
-        mw0, mw1, mw2 = means[i, 0], means[i, 1], means[i, 2]
-        px, py, pz = _to_camera(means, i, rc, tc)
-        z_ok = abs(pz) >= _F(1e-6)
-        zs = pz if z_ok else _F(1e-6)
-        ux, uy = px / zs, py / zs
-        clamp_x = ux < -lim_x or ux > lim_x
-        clamp_y = uy < -lim_y or uy > lim_y
-        tx = min(max(ux, -lim_x), lim_x) * zs
-        ty = min(max(uy, -lim_y), lim_y) * zs
-        zs2 = zs * zs
-        j00, j02 = fx / zs, -fx * tx / zs2
-        j11, j12 = fy / zs, -fy * ty / zs2
+    n = means.shape[0]
+    for blk in prange((n + PROJECT_BLOCK - 1) // PROJECT_BLOCK):
         t = np.empty((2, 3), np.float32)
-        for k in range(3):
-            t[0, k] = j00 * rc[0, k] + j02 * rc[2, k]
-            t[1, k] = j11 * rc[1, k] + j12 * rc[2, k]
-        qw, qx, qy, qz = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
-        qn = max(np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), _F(1e-12))
-        nw, nx, ny, nz = qw / qn, qx / qn, qy / qn, qz / qn
         rg = np.empty((3, 3), np.float32)
-        rg[0, 0], rg[0, 1], rg[0, 2], rg[1, 0], rg[1, 1], rg[1, 2], rg[2, 0], rg[2, 1], rg[2, 2] = \
-            _rotmat(nw, nx, ny, nz)
         sc = np.empty(3, np.float32)
-        for k in range(3):
-            sc[k] = np.exp(log_scales[i, k])
         mm = np.empty((3, 3), np.float32)  # M = Rg diag(s)
-        for j in range(3):
-            for k in range(3):
-                mm[j, k] = rg[j, k] * sc[k]
         sig = np.empty((3, 3), np.float32)  # Sigma = M M^T
-        for j in range(3):
-            for k in range(3):
-                sig[j, k] = mm[j, 0] * mm[k, 0] + mm[j, 1] * mm[k, 1] + mm[j, 2] * mm[k, 2]
-        # symmetric upstream gradient of the 2x2 screen covariance (b is read once, off the diagonal)
-        gs00, gs01, gs11 = g_cov[i, 0], _F(0.5) * g_cov[i, 1], g_cov[i, 2]
-        # dL/dT = 2 Gs T Sigma ; dL/dSigma = T^T Gs T ; dL/dM = 2 dL/dSigma M
         ts = np.empty((2, 3), np.float32)  # T Sigma
-        for r in range(2):
-            for k in range(3):
-                ts[r, k] = t[r, 0] * sig[0, k] + t[r, 1] * sig[1, k] + t[r, 2] * sig[2, k]
         gt = np.empty((2, 3), np.float32)
-        for k in range(3):
-            gt[0, k] = _F(2.0) * (gs00 * ts[0, k] + gs01 * ts[1, k])
-            gt[1, k] = _F(2.0) * (gs01 * ts[0, k] + gs11 * ts[1, k])
         gsig = np.empty((3, 3), np.float32)
-        for j in range(3):
-            for k in range(3):
-                gsig[j, k] = (t[0, j] * (gs00 * t[0, k] + gs01 * t[1, k])
-                              + t[1, j] * (gs01 * t[0, k] + gs11 * t[1, k]))
         grg = np.empty((3, 3), np.float32)
-        for k in range(3):
-            gsk = _F(0.0)
+        for i in range(blk * PROJECT_BLOCK, min(n, (blk + 1) * PROJECT_BLOCK)):
+            mw0, mw1, mw2 = means[i, 0], means[i, 1], means[i, 2]
+            px, py, pz = _to_camera(means, i, rc, tc)
+            z_ok = abs(pz) >= _F(1e-6)
+            zs = pz if z_ok else _F(1e-6)
+            ux, uy = px / zs, py / zs
+            clamp_x = ux < -lim_x or ux > lim_x
+            clamp_y = uy < -lim_y or uy > lim_y
+            tx = min(max(ux, -lim_x), lim_x) * zs
+            ty = min(max(uy, -lim_y), lim_y) * zs
+            zs2 = zs * zs
+            j00, j02 = fx / zs, -fx * tx / zs2
+            j11, j12 = fy / zs, -fy * ty / zs2
+            for k in range(3):
+                t[0, k] = j00 * rc[0, k] + j02 * rc[2, k]
+                t[1, k] = j11 * rc[1, k] + j12 * rc[2, k]
+            qw, qx, qy, qz = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
+            qn = max(np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), _F(1e-12))
+            nw, nx, ny, nz = qw / qn, qx / qn, qy / qn, qz / qn
+            rg[0, 0], rg[0, 1], rg[0, 2], rg[1, 0], rg[1, 1], rg[1, 2], rg[2, 0], rg[2, 1], rg[2, 2] = \
+                _rotmat(nw, nx, ny, nz)
+            for k in range(3):
+                sc[k] = np.exp(log_scales[i, k])
             for j in range(3):
-                gm = _F(2.0) * (gsig[j, 0] * mm[0, k] + gsig[j, 1] * mm[1, k] + gsig[j, 2] * mm[2, k])
-                grg[j, k] = gm * sc[k]
-                gsk += gm * rg[j, k]
-            g_log_scales[i, k] = gsk * sc[k]
-        d = grg
-        gw = _F(2.0) * (-nz * d[0, 1] + ny * d[0, 2] + nz * d[1, 0] - nx * d[1, 2] - ny * d[2, 0] + nx * d[2, 1])
-        gx = _F(2.0) * (ny * d[0, 1] + nz * d[0, 2] + ny * d[1, 0] - _F(2.0) * nx * d[1, 1] - nw * d[1, 2]
-                        + nz * d[2, 0] + nw * d[2, 1] - _F(2.0) * nx * d[2, 2])
-        gy = _F(2.0) * (-_F(2.0) * ny * d[0, 0] + nx * d[0, 1] + nw * d[0, 2] + nx * d[1, 0] + nz * d[1, 2]
-                        - nw * d[2, 0] + nz * d[2, 1] - _F(2.0) * ny * d[2, 2])
-        gz = _F(2.0) * (-_F(2.0) * nz * d[0, 0] - nw * d[0, 1] + nx * d[0, 2] + nw * d[1, 0]
-                        - _F(2.0) * nz * d[1, 1] + ny * d[1, 2] + nx * d[2, 0] + ny * d[2, 1])
-        dot = nw * gw + nx * gx + ny * gy + nz * gz
-        g_quats[i, 0] = (gw - nw * dot) / qn
-        g_quats[i, 1] = (gx - nx * dot) / qn
-        g_quats[i, 2] = (gy - ny * dot) / qn
-        g_quats[i, 3] = (gz - nz * dot) / qn
-        # T = J Rc: dL/dJ = dL/dT Rc^T, dL/dRc += J^T dL/dT
-        gj00 = gt[0, 0] * rc[0, 0] + gt[0, 1] * rc[0, 1] + gt[0, 2] * rc[0, 2]
-        gj02 = gt[0, 0] * rc[2, 0] + gt[0, 1] * rc[2, 1] + gt[0, 2] * rc[2, 2]
-        gj11 = gt[1, 0] * rc[1, 0] + gt[1, 1] * rc[1, 1] + gt[1, 2] * rc[1, 2]
-        gj12 = gt[1, 0] * rc[2, 0] + gt[1, 1] * rc[2, 1] + gt[1, 2] * rc[2, 2]
-        for k in range(3):
-            g_pose[i, k] = j00 * gt[0, k]
-            g_pose[i, 3 + k] = j11 * gt[1, k]
-            g_pose[i, 6 + k] = j02 * gt[0, k] + j12 * gt[1, k]
-        # camera-space point: from J (through zs, tx, ty), the projected mean and z
-        gmx, gmy = g_m2[i, 0], g_m2[i, 1]
-        g_tx = gj02 * (-fx / zs2)
-        g_ty = gj12 * (-fy / zs2)
-        g_zs = (gj00 * (-fx / zs2) + gj02 * (_F(2.0) * fx * tx / (zs2 * zs)) + gj11 * (-fy / zs2)
-                + gj12 * (_F(2.0) * fy * ty / (zs2 * zs)) - (gmx * fx * px + gmy * fy * py) / zs2)
-        gpx = gmx * fx / zs
-        gpy = gmy * fy / zs
-        if clamp_x:  # tx = +-lim_x zs
-            g_zs += g_tx * (lim_x if ux > _F(0.0) else -lim_x)
-        else:
-            gpx += g_tx
-        if clamp_y:
-            g_zs += g_ty * (lim_y if uy > _F(0.0) else -lim_y)
-        else:
-            gpy += g_ty
-        gpz = g_z[i] + (g_zs if z_ok else _F(0.0))
-        for k in range(3):
-            g_means[i, k] = rc[0, k] * gpx + rc[1, k] * gpy + rc[2, k] * gpz
-        g_pose[i, 0] += gpx * mw0
-        g_pose[i, 1] += gpx * mw1
-        g_pose[i, 2] += gpx * mw2
-        g_pose[i, 3] += gpy * mw0
-        g_pose[i, 4] += gpy * mw1
-        g_pose[i, 5] += gpy * mw2
-        g_pose[i, 6] += gpz * mw0
-        g_pose[i, 7] += gpz * mw1
-        g_pose[i, 8] += gpz * mw2
-        g_pose[i, 9] = gpx
-        g_pose[i, 10] = gpy
-        g_pose[i, 11] = gpz
+                for k in range(3):
+                    mm[j, k] = rg[j, k] * sc[k]
+            for j in range(3):
+                for k in range(3):
+                    sig[j, k] = mm[j, 0] * mm[k, 0] + mm[j, 1] * mm[k, 1] + mm[j, 2] * mm[k, 2]
+            # symmetric upstream gradient of the 2x2 screen covariance (b is read once, off the diagonal)
+            gs00, gs01, gs11 = g_cov[i, 0], _F(0.5) * g_cov[i, 1], g_cov[i, 2]
+            # dL/dT = 2 Gs T Sigma ; dL/dSigma = T^T Gs T ; dL/dM = 2 dL/dSigma M
+            for r in range(2):
+                for k in range(3):
+                    ts[r, k] = t[r, 0] * sig[0, k] + t[r, 1] * sig[1, k] + t[r, 2] * sig[2, k]
+            for k in range(3):
+                gt[0, k] = _F(2.0) * (gs00 * ts[0, k] + gs01 * ts[1, k])
+                gt[1, k] = _F(2.0) * (gs01 * ts[0, k] + gs11 * ts[1, k])
+            if gaussians:
+                for j in range(3):
+                    for k in range(3):
+                        gsig[j, k] = (t[0, j] * (gs00 * t[0, k] + gs01 * t[1, k])
+                                      + t[1, j] * (gs01 * t[0, k] + gs11 * t[1, k]))
+                for k in range(3):
+                    gsk = _F(0.0)
+                    for j in range(3):
+                        gm = _F(2.0) * (gsig[j, 0] * mm[0, k] + gsig[j, 1] * mm[1, k] + gsig[j, 2] * mm[2, k])
+                        grg[j, k] = gm * sc[k]
+                        gsk += gm * rg[j, k]
+                    g_log_scales[i, k] = gsk * sc[k]
+                d = grg
+                gw = _F(2.0) * (-nz * d[0, 1] + ny * d[0, 2] + nz * d[1, 0] - nx * d[1, 2] - ny * d[2, 0]
+                                + nx * d[2, 1])
+                gx = _F(2.0) * (ny * d[0, 1] + nz * d[0, 2] + ny * d[1, 0] - _F(2.0) * nx * d[1, 1] - nw * d[1, 2]
+                                + nz * d[2, 0] + nw * d[2, 1] - _F(2.0) * nx * d[2, 2])
+                gy = _F(2.0) * (-_F(2.0) * ny * d[0, 0] + nx * d[0, 1] + nw * d[0, 2] + nx * d[1, 0] + nz * d[1, 2]
+                                - nw * d[2, 0] + nz * d[2, 1] - _F(2.0) * ny * d[2, 2])
+                gz = _F(2.0) * (-_F(2.0) * nz * d[0, 0] - nw * d[0, 1] + nx * d[0, 2] + nw * d[1, 0]
+                                - _F(2.0) * nz * d[1, 1] + ny * d[1, 2] + nx * d[2, 0] + ny * d[2, 1])
+                dot = nw * gw + nx * gx + ny * gy + nz * gz
+                g_quats[i, 0] = (gw - nw * dot) / qn
+                g_quats[i, 1] = (gx - nx * dot) / qn
+                g_quats[i, 2] = (gy - ny * dot) / qn
+                g_quats[i, 3] = (gz - nz * dot) / qn
+            # T = J Rc: dL/dJ = dL/dT Rc^T, dL/dRc += J^T dL/dT
+            gj00 = gt[0, 0] * rc[0, 0] + gt[0, 1] * rc[0, 1] + gt[0, 2] * rc[0, 2]
+            gj02 = gt[0, 0] * rc[2, 0] + gt[0, 1] * rc[2, 1] + gt[0, 2] * rc[2, 2]
+            gj11 = gt[1, 0] * rc[1, 0] + gt[1, 1] * rc[1, 1] + gt[1, 2] * rc[1, 2]
+            gj12 = gt[1, 0] * rc[2, 0] + gt[1, 1] * rc[2, 1] + gt[1, 2] * rc[2, 2]
+            for k in range(3):
+                g_pose[i, k] = j00 * gt[0, k]
+                g_pose[i, 3 + k] = j11 * gt[1, k]
+                g_pose[i, 6 + k] = j02 * gt[0, k] + j12 * gt[1, k]
+            # camera-space point: from J (through zs, tx, ty), the projected mean and z
+            gmx, gmy = g_m2[i, 0], g_m2[i, 1]
+            g_tx = gj02 * (-fx / zs2)
+            g_ty = gj12 * (-fy / zs2)
+            g_zs = (gj00 * (-fx / zs2) + gj02 * (_F(2.0) * fx * tx / (zs2 * zs)) + gj11 * (-fy / zs2)
+                    + gj12 * (_F(2.0) * fy * ty / (zs2 * zs)) - (gmx * fx * px + gmy * fy * py) / zs2)
+            gpx = gmx * fx / zs
+            gpy = gmy * fy / zs
+            if clamp_x:  # tx = +-lim_x zs
+                g_zs += g_tx * (lim_x if ux > _F(0.0) else -lim_x)
+            else:
+                gpx += g_tx
+            if clamp_y:
+                g_zs += g_ty * (lim_y if uy > _F(0.0) else -lim_y)
+            else:
+                gpy += g_ty
+            gpz = g_z[i] + (g_zs if z_ok else _F(0.0))
+            if gaussians:
+                for k in range(3):
+                    g_means[i, k] = rc[0, k] * gpx + rc[1, k] * gpy + rc[2, k] * gpz
+            g_pose[i, 0] += gpx * mw0
+            g_pose[i, 1] += gpx * mw1
+            g_pose[i, 2] += gpx * mw2
+            g_pose[i, 3] += gpy * mw0
+            g_pose[i, 4] += gpy * mw1
+            g_pose[i, 5] += gpy * mw2
+            g_pose[i, 6] += gpz * mw0
+            g_pose[i, 7] += gpz * mw1
+            g_pose[i, 8] += gpz * mw2
+            g_pose[i, 9] = gpx
+            g_pose[i, 10] = gpy
+            g_pose[i, 11] = gpz
 
 
 @njit(cache=True)
@@ -681,14 +586,17 @@ class _Project(torch.autograd.Function):
         g_z = torch.zeros(n) if g_z is None else g_z.float().contiguous()
         g_means, g_ls, g_q = torch.empty(n, 3), torch.empty(n, 3), torch.empty(n, 4)
         g_pose_rows = torch.empty(n, 12)  # [N, 12]
+        gaussians = any(ctx.needs_input_grad[:3])
         _project_bwd(mw.numpy(), ls.numpy(), q.numpy(), rc.numpy(), tc.numpy(), cam.numpy(), width, height,
-                     g_m2.numpy(), g_cov.numpy(), g_z.numpy(), g_means.numpy(), g_ls.numpy(), g_q.numpy(),
+                     g_m2.numpy(), g_cov.numpy(), g_z.numpy(), gaussians, g_means.numpy(), g_ls.numpy(), g_q.numpy(),
                      g_pose_rows.numpy())
         g_pose = torch.zeros(12)
         _sum_rows(g_pose_rows.numpy(), g_pose.numpy())
         g_w2c = torch.zeros(4, 4)
         g_w2c[:3, :3] = g_pose[:9].reshape(3, 3)
         g_w2c[:3, 3] = g_pose[9:]
+        if not gaussians:
+            g_means = g_ls = g_q = None
         return g_means, g_ls, g_q, g_w2c, None, None, None, None, None, None
 
 
