@@ -16,6 +16,9 @@ Design choices, and why:
   pair list. Per-Gaussian sums (gradients, pruning statistics) are first written per pair, then
   reduced over pairs in list order by one sequential loop. The result does not depend on the
   thread count or the schedule: bit-identical from run to run.
+- Tiles are dealt to threads by their pair count (largest first, round robin) rather than split
+  into contiguous halves of the image, so that a thread given the sky does not wait for the one
+  given the road. Which thread runs a tile changes nothing in its result.
 - Every buffer the kernels fill is a torch tensor (they receive numpy views), so the live-tensor
   memory probe of ``bench/measure.py`` counts it. Only a 256-entry "done" flag per tile and the
   kernels' scalars live outside torch.
