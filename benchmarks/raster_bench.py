@@ -11,7 +11,9 @@ peak), and bytes per Gaussian divide it by N.
 
 ``--old REV`` adds a row ``fused@REV``: the fused kernels of git revision REV (loaded from
 ``git show`` into a cache folder, compiled once), timed back to back with today's in the same
-process; ``vs_old`` is the ratio, which holds on a loaded machine where absolute times do not.
+process; ``vs_old`` is the old kernels' time over today's (above 1: today's are faster), a ratio
+that holds on a loaded machine where absolute times do not; ``vs_torch`` likewise is torch's time
+over the row's.
 
     python benchmarks/raster_bench.py [--device cpu|cuda] [--repeats 5] [--backends torch,fused]
                                       [--scenes iso,aniso] [--points 20000x320x192,50000x640x384]
