@@ -16,6 +16,9 @@ Design choices, and why:
   pair list. Per-Gaussian sums (gradients, pruning statistics) are first written per pair, then
   reduced over pairs in list order by one sequential loop. The result does not depend on the
   thread count or the schedule: bit-identical from run to run.
+- Tiles are dealt to threads by their pair count (largest first, round robin) rather than split
+  into contiguous halves of the image, so that a thread given the sky does not wait for the one
+  given the road. Which thread runs a tile changes nothing in its result.
 - Every buffer the kernels fill is a torch tensor (they receive numpy views), so the live-tensor
   memory probe of ``bench/measure.py`` counts it. Only a 256-entry "done" flag per tile and the
   kernels' scalars live outside torch.
@@ -47,6 +50,7 @@ LN255 = _F(math.log(255.0))
 # dropped, which changes no float32 sum
 COVERAGE_POWER_MIN = _F(-20.0)
 N_FEAT = 4  # r, g, b, depth
+PROJECT_BLOCK = 256  # Gaussians per block of the projection's backward (one set of scratch matrices each)
 
 
 @njit(cache=True)
@@ -119,172 +123,196 @@ def _power_min(o):  # pragma: no cover - compiled
     return -LN255 - np.log(o) - _F(1e-3)
 
 
+@njit(cache=True)
+def _schedule(tile_start, n_threads):  # pragma: no cover - compiled
+    """Tiles dealt to threads by cost (pairs per tile, largest first, round robin), so that the
+    threads finish together: the work of a tile, not its position, decides its thread.
+
+    Returns order [n_tiles] and bounds [n_threads + 1]: thread i runs order[bounds[i]:bounds[i + 1]].
+    """
+    n_tiles = tile_start.shape[0] - 1
+    cost = tile_start[1:] - tile_start[:-1]
+    by_cost = np.argsort(-cost, kind="mergesort")
+    order = np.empty(n_tiles, np.int64)
+    bounds = np.zeros(n_threads + 1, np.int64)
+    j = 0
+    for th in range(n_threads):
+        for r in range(th, n_tiles, n_threads):
+            order[j] = by_cost[r]
+            j += 1
+        bounds[th + 1] = j
+    return order, bounds
+
+
 @njit(parallel=True, cache=True, fastmath=True)
-def _forward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x, stats,
+def _forward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x, stats, order, bounds,
              acc, t_final, last, pair_cov, pair_hits, pair_maxw):  # pragma: no cover - compiled
     """Front-to-back compositing per tile; fills acc [H*W, 4], t_final [H*W], last [H*W] (pair index).
 
     With ``stats`` it also fills, per pair, the coverage sum over the tile, the pixels contributed to
     and the largest blending weight.
     """
-    n_tiles = tile_start.shape[0] - 1
-    for t in prange(n_tiles):
-        x0, x1, y0, y1 = _tile_pixels(t, tiles_x, width, height)
-        for y in range(y0, y1):
-            for x in range(x0, x1):
-                p = y * width + x
-                t_final[p] = _F(1.0)
-                last[p] = -1
-                for ch in range(N_FEAT):
-                    acc[p, ch] = _F(0.0)
-        done = np.zeros(TILE * TILE, np.bool_)
-        n_active = (x1 - x0) * (y1 - y0)
-        for k in range(tile_start[t], tile_start[t + 1]):
-            if n_active == 0 and not stats:
-                break
-            g = gid[k]
-            mx, my = m2[g, 0], m2[g, 1]
-            a, b, c = conic[g, 0], conic[g, 1], conic[g, 2]
-            o = opac[g]
-            hits = 0
-            maxw = _F(0.0)
-            if n_active > 0:
-                bx0, bx1, by0, by1 = _box(mx, my, a, b, c, o, x0, x1, y0, y1)
-                p_min = _power_min(o)
-                for y in range(by0, by1):
-                    dy = _F(y) - my
-                    for x in range(bx0, bx1):
-                        li = (y - y0) * TILE + (x - x0)
-                        if done[li]:
-                            continue
-                        dx = _F(x) - mx
-                        power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
-                        if power < p_min:  # the box's corners, outside the 1/255 ellipse: no exp needed
-                            continue
-                        raw = o * np.exp(power)
-                        if raw < ALPHA_MIN:
-                            continue
-                        alpha = min(raw, ALPHA_MAX)
-                        p = y * width + x
-                        tp = t_final[p]
-                        test_t = tp * (_F(1.0) - alpha)
-                        if test_t < T_MIN:
-                            done[li] = True
-                            n_active -= 1
-                            continue
-                        w = alpha * tp
-                        for ch in range(N_FEAT):
-                            acc[p, ch] += w * feat[g, ch]
-                        t_final[p] = test_t
-                        last[p] = k
-                        hits += 1
-                        if w > maxw:
-                            maxw = w
-            if stats:
-                pair_hits[k] = hits
-                pair_maxw[k] = maxw
-                cov = _F(0.0)
-                if o > _F(0.0):
-                    r2 = _F(-2.0) * COVERAGE_POWER_MIN
-                    cx0, cx1, cy0, cy1 = _ellipse_box(mx, my, a, b, c, r2, _F(1.0), x0, x1, y0, y1)
-                    for y in range(cy0, cy1):
+    for th in prange(bounds.shape[0] - 1):
+        for j in range(bounds[th], bounds[th + 1]):
+            t = order[j]
+            x0, x1, y0, y1 = _tile_pixels(t, tiles_x, width, height)
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    p = y * width + x
+                    t_final[p] = _F(1.0)
+                    last[p] = -1
+                    for ch in range(N_FEAT):
+                        acc[p, ch] = _F(0.0)
+            done = np.zeros(TILE * TILE, np.bool_)
+            n_active = (x1 - x0) * (y1 - y0)
+            for k in range(tile_start[t], tile_start[t + 1]):
+                if n_active == 0 and not stats:
+                    break
+                g = gid[k]
+                mx, my = m2[g, 0], m2[g, 1]
+                a, b, c = conic[g, 0], conic[g, 1], conic[g, 2]
+                o = opac[g]
+                hits = 0
+                maxw = _F(0.0)
+                if n_active > 0:
+                    bx0, bx1, by0, by1 = _box(mx, my, a, b, c, o, x0, x1, y0, y1)
+                    p_min = _power_min(o)
+                    for y in range(by0, by1):
                         dy = _F(y) - my
-                        for x in range(cx0, cx1):
+                        for x in range(bx0, bx1):
+                            li = (y - y0) * TILE + (x - x0)
+                            if done[li]:
+                                continue
                             dx = _F(x) - mx
                             power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
-                            cov += o * np.exp(power)
-                pair_cov[k] = cov
+                            if power < p_min:  # the box's corners, outside the 1/255 ellipse: no exp needed
+                                continue
+                            raw = o * np.exp(power)
+                            if raw < ALPHA_MIN:
+                                continue
+                            alpha = min(raw, ALPHA_MAX)
+                            p = y * width + x
+                            tp = t_final[p]
+                            test_t = tp * (_F(1.0) - alpha)
+                            if test_t < T_MIN:
+                                done[li] = True
+                                n_active -= 1
+                                continue
+                            w = alpha * tp
+                            for ch in range(N_FEAT):
+                                acc[p, ch] += w * feat[g, ch]
+                            t_final[p] = test_t
+                            last[p] = k
+                            hits += 1
+                            if w > maxw:
+                                maxw = w
+                if stats:
+                    pair_hits[k] = hits
+                    pair_maxw[k] = maxw
+                    cov = _F(0.0)
+                    if o > _F(0.0):
+                        r2 = _F(-2.0) * COVERAGE_POWER_MIN
+                        cx0, cx1, cy0, cy1 = _ellipse_box(mx, my, a, b, c, r2, _F(1.0), x0, x1, y0, y1)
+                        for y in range(cy0, cy1):
+                            dy = _F(y) - my
+                            for x in range(cx0, cx1):
+                                dx = _F(x) - mx
+                                power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
+                                cov += o * np.exp(power)
+                    pair_cov[k] = cov
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def _backward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x,
+def _backward(gid, tile_start, m2, conic, opac, feat, width, height, tiles_x, order, bounds,
               t_final, last, g_acc, g_t, pair_grad):  # pragma: no cover - compiled
     """Per pixel, back to front from its last contributor (3DGS's backward pass).
 
     pair_grad [P, 10]: d/d(mean2d x, y), d/d(conic a, b, c), d/d opacity, d/d features (4) of the
     pair's Gaussian, summed over the tile's pixels in a fixed order.
     """
-    n_tiles = tile_start.shape[0] - 1
-    for t in prange(n_tiles):
-        x0, x1, y0, y1 = _tile_pixels(t, tiles_x, width, height)
-        s, e = tile_start[t], tile_start[t + 1]
-        for k in range(s, e):
-            for j in range(10):
-                pair_grad[k, j] = _F(0.0)
-        k_last = -1
-        for y in range(y0, y1):
-            for x in range(x0, x1):
-                k_last = max(k_last, last[y * width + x])
-        if k_last < 0:
-            continue
-        # per pixel: transmittance in front of the Gaussian being visited, and the features
-        # accumulated behind it (sum of w_i f_i over later contributors)
-        tcur = np.empty(TILE * TILE, np.float32)
-        behind = np.zeros((TILE * TILE, N_FEAT), np.float32)
-        for y in range(y0, y1):
-            for x in range(x0, x1):
-                tcur[(y - y0) * TILE + (x - x0)] = t_final[y * width + x]
-        for k in range(k_last, s - 1, -1):
-            g = gid[k]
-            mx, my = m2[g, 0], m2[g, 1]
-            a, b, c = conic[g, 0], conic[g, 1], conic[g, 2]
-            o = opac[g]
-            bx0, bx1, by0, by1 = _box(mx, my, a, b, c, o, x0, x1, y0, y1)
-            p_min = _power_min(o)
-            gmx = gmy = ga = gb = gc = go = _F(0.0)
-            gf0 = gf1 = gf2 = gf3 = _F(0.0)
-            f0, f1, f2, f3 = feat[g, 0], feat[g, 1], feat[g, 2], feat[g, 3]
-            for y in range(by0, by1):
-                dy = _F(y) - my
-                for x in range(bx0, bx1):
-                    p = y * width + x
-                    if last[p] < k:
-                        continue
-                    dx = _F(x) - mx
-                    power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
-                    if power < p_min:  # the same test as the forward pass
-                        continue
-                    gauss = np.exp(power)
-                    raw = o * gauss
-                    if raw < ALPHA_MIN:
-                        continue
-                    alpha = min(raw, ALPHA_MAX)
-                    li = (y - y0) * TILE + (x - x0)
-                    inv_one_m = _F(1.0) / (_F(1.0) - alpha)
-                    t_before = tcur[li] * inv_one_m
-                    w = alpha * t_before
-                    q0, q1, q2, q3 = g_acc[p, 0], g_acc[p, 1], g_acc[p, 2], g_acc[p, 3]
-                    gf0 += w * q0
-                    gf1 += w * q1
-                    gf2 += w * q2
-                    gf3 += w * q3
-                    # d acc / d alpha = f T_before - behind / (1 - alpha); d T_final / d alpha = -T_final / (1 - alpha)
-                    g_alpha = (t_before * (q0 * f0 + q1 * f1 + q2 * f2 + q3 * f3)
-                               - inv_one_m * (q0 * behind[li, 0] + q1 * behind[li, 1] + q2 * behind[li, 2]
-                                              + q3 * behind[li, 3] + g_t[p] * t_final[p]))
-                    behind[li, 0] += w * f0
-                    behind[li, 1] += w * f1
-                    behind[li, 2] += w * f2
-                    behind[li, 3] += w * f3
-                    tcur[li] = t_before
-                    if raw < ALPHA_MAX:  # the clamp at 0.99 passes no gradient
-                        go += g_alpha * gauss
-                        g_pow = g_alpha * raw
-                        gmx += g_pow * (a * dx + b * dy)
-                        gmy += g_pow * (c * dy + b * dx)
-                        ga += g_pow * (_F(-0.5) * dx * dx)
-                        gc += g_pow * (_F(-0.5) * dy * dy)
-                        gb += g_pow * (-dx * dy)
-            pair_grad[k, 0] = gmx
-            pair_grad[k, 1] = gmy
-            pair_grad[k, 2] = ga
-            pair_grad[k, 3] = gb
-            pair_grad[k, 4] = gc
-            pair_grad[k, 5] = go
-            pair_grad[k, 6] = gf0
-            pair_grad[k, 7] = gf1
-            pair_grad[k, 8] = gf2
-            pair_grad[k, 9] = gf3
+    for th in prange(bounds.shape[0] - 1):
+        for j in range(bounds[th], bounds[th + 1]):
+            t = order[j]
+            x0, x1, y0, y1 = _tile_pixels(t, tiles_x, width, height)
+            s, e = tile_start[t], tile_start[t + 1]
+            for k in range(s, e):
+                for j in range(10):
+                    pair_grad[k, j] = _F(0.0)
+            k_last = -1
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    k_last = max(k_last, last[y * width + x])
+            if k_last < 0:
+                continue
+            # per pixel: transmittance in front of the Gaussian being visited, and the features
+            # accumulated behind it (sum of w_i f_i over later contributors)
+            tcur = np.empty(TILE * TILE, np.float32)
+            behind = np.zeros((TILE * TILE, N_FEAT), np.float32)
+            for y in range(y0, y1):
+                for x in range(x0, x1):
+                    tcur[(y - y0) * TILE + (x - x0)] = t_final[y * width + x]
+            for k in range(k_last, s - 1, -1):
+                g = gid[k]
+                mx, my = m2[g, 0], m2[g, 1]
+                a, b, c = conic[g, 0], conic[g, 1], conic[g, 2]
+                o = opac[g]
+                bx0, bx1, by0, by1 = _box(mx, my, a, b, c, o, x0, x1, y0, y1)
+                p_min = _power_min(o)
+                gmx = gmy = ga = gb = gc = go = _F(0.0)
+                gf0 = gf1 = gf2 = gf3 = _F(0.0)
+                f0, f1, f2, f3 = feat[g, 0], feat[g, 1], feat[g, 2], feat[g, 3]
+                for y in range(by0, by1):
+                    dy = _F(y) - my
+                    for x in range(bx0, bx1):
+                        p = y * width + x
+                        if last[p] < k:
+                            continue
+                        dx = _F(x) - mx
+                        power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
+                        if power < p_min:  # the same test as the forward pass
+                            continue
+                        gauss = np.exp(power)
+                        raw = o * gauss
+                        if raw < ALPHA_MIN:
+                            continue
+                        alpha = min(raw, ALPHA_MAX)
+                        li = (y - y0) * TILE + (x - x0)
+                        inv_one_m = _F(1.0) / (_F(1.0) - alpha)
+                        t_before = tcur[li] * inv_one_m
+                        w = alpha * t_before
+                        q0, q1, q2, q3 = g_acc[p, 0], g_acc[p, 1], g_acc[p, 2], g_acc[p, 3]
+                        gf0 += w * q0
+                        gf1 += w * q1
+                        gf2 += w * q2
+                        gf3 += w * q3
+                        # d acc / d alpha = f T_before - behind / (1 - alpha);
+                        # d T_final / d alpha = -T_final / (1 - alpha)
+                        g_alpha = (t_before * (q0 * f0 + q1 * f1 + q2 * f2 + q3 * f3)
+                                   - inv_one_m * (q0 * behind[li, 0] + q1 * behind[li, 1] + q2 * behind[li, 2]
+                                                  + q3 * behind[li, 3] + g_t[p] * t_final[p]))
+                        behind[li, 0] += w * f0
+                        behind[li, 1] += w * f1
+                        behind[li, 2] += w * f2
+                        behind[li, 3] += w * f3
+                        tcur[li] = t_before
+                        if raw < ALPHA_MAX:  # the clamp at 0.99 passes no gradient
+                            go += g_alpha * gauss
+                            g_pow = g_alpha * raw
+                            gmx += g_pow * (a * dx + b * dy)
+                            gmy += g_pow * (c * dy + b * dx)
+                            ga += g_pow * (_F(-0.5) * dx * dx)
+                            gc += g_pow * (_F(-0.5) * dy * dy)
+                            gb += g_pow * (-dx * dy)
+                pair_grad[k, 0] = gmx
+                pair_grad[k, 1] = gmy
+                pair_grad[k, 2] = ga
+                pair_grad[k, 3] = gb
+                pair_grad[k, 4] = gc
+                pair_grad[k, 5] = go
+                pair_grad[k, 6] = gf0
+                pair_grad[k, 7] = gf1
+                pair_grad[k, 8] = gf2
+                pair_grad[k, 9] = gf3
 
 
 @njit(cache=True)
@@ -390,123 +418,132 @@ def _project_fwd(means, log_scales, quats, rc, tc, cam, width, height, near_m, t
 
 
 @njit(parallel=True, cache=True)
-def _project_bwd(means, log_scales, quats, rc, tc, cam, width, height, g_m2, g_cov, g_z,
+def _project_bwd(means, log_scales, quats, rc, tc, cam, width, height, g_m2, g_cov, g_z, gaussians,
                  g_means, g_log_scales, g_quats, g_pose):  # pragma: no cover - compiled
     """The chain rule of ``_project_fwd`` per Gaussian; g_pose [N, 12] holds each Gaussian's share of
-    d/d(Rc row-major, tc), reduced afterwards in a fixed order."""
+    d/d(Rc row-major, tc), reduced afterwards in a fixed order. Without ``gaussians`` (tracking: only
+    the pose is optimised) the gradients of means, log-scales and quaternions are left unwritten.
+
+    The small per-Gaussian matrices are allocated once per block of Gaussians: an allocation per
+    Gaussian cost more than its arithmetic."""
     fx, fy = cam[0], cam[1]
     lim_x, lim_y = _jacobian_limits(fx, fy, width, height)
-    for i in prange(means.shape[0]):
-        mw0, mw1, mw2 = means[i, 0], means[i, 1], means[i, 2]
-        px, py, pz = _to_camera(means, i, rc, tc)
-        z_ok = abs(pz) >= _F(1e-6)
-        zs = pz if z_ok else _F(1e-6)
-        ux, uy = px / zs, py / zs
-        clamp_x = ux < -lim_x or ux > lim_x
-        clamp_y = uy < -lim_y or uy > lim_y
-        tx = min(max(ux, -lim_x), lim_x) * zs
-        ty = min(max(uy, -lim_y), lim_y) * zs
-        zs2 = zs * zs
-        j00, j02 = fx / zs, -fx * tx / zs2
-        j11, j12 = fy / zs, -fy * ty / zs2
+    n = means.shape[0]
+    for blk in prange((n + PROJECT_BLOCK - 1) // PROJECT_BLOCK):
         t = np.empty((2, 3), np.float32)
-        for k in range(3):
-            t[0, k] = j00 * rc[0, k] + j02 * rc[2, k]
-            t[1, k] = j11 * rc[1, k] + j12 * rc[2, k]
-        qw, qx, qy, qz = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
-        qn = max(np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), _F(1e-12))
-        nw, nx, ny, nz = qw / qn, qx / qn, qy / qn, qz / qn
         rg = np.empty((3, 3), np.float32)
-        rg[0, 0], rg[0, 1], rg[0, 2], rg[1, 0], rg[1, 1], rg[1, 2], rg[2, 0], rg[2, 1], rg[2, 2] = \
-            _rotmat(nw, nx, ny, nz)
         sc = np.empty(3, np.float32)
-        for k in range(3):
-            sc[k] = np.exp(log_scales[i, k])
         mm = np.empty((3, 3), np.float32)  # M = Rg diag(s)
-        for j in range(3):
-            for k in range(3):
-                mm[j, k] = rg[j, k] * sc[k]
         sig = np.empty((3, 3), np.float32)  # Sigma = M M^T
-        for j in range(3):
-            for k in range(3):
-                sig[j, k] = mm[j, 0] * mm[k, 0] + mm[j, 1] * mm[k, 1] + mm[j, 2] * mm[k, 2]
-        # symmetric upstream gradient of the 2x2 screen covariance (b is read once, off the diagonal)
-        gs00, gs01, gs11 = g_cov[i, 0], _F(0.5) * g_cov[i, 1], g_cov[i, 2]
-        # dL/dT = 2 Gs T Sigma ; dL/dSigma = T^T Gs T ; dL/dM = 2 dL/dSigma M
         ts = np.empty((2, 3), np.float32)  # T Sigma
-        for r in range(2):
-            for k in range(3):
-                ts[r, k] = t[r, 0] * sig[0, k] + t[r, 1] * sig[1, k] + t[r, 2] * sig[2, k]
         gt = np.empty((2, 3), np.float32)
-        for k in range(3):
-            gt[0, k] = _F(2.0) * (gs00 * ts[0, k] + gs01 * ts[1, k])
-            gt[1, k] = _F(2.0) * (gs01 * ts[0, k] + gs11 * ts[1, k])
         gsig = np.empty((3, 3), np.float32)
-        for j in range(3):
-            for k in range(3):
-                gsig[j, k] = (t[0, j] * (gs00 * t[0, k] + gs01 * t[1, k])
-                              + t[1, j] * (gs01 * t[0, k] + gs11 * t[1, k]))
         grg = np.empty((3, 3), np.float32)
-        for k in range(3):
-            gsk = _F(0.0)
+        for i in range(blk * PROJECT_BLOCK, min(n, (blk + 1) * PROJECT_BLOCK)):
+            mw0, mw1, mw2 = means[i, 0], means[i, 1], means[i, 2]
+            px, py, pz = _to_camera(means, i, rc, tc)
+            z_ok = abs(pz) >= _F(1e-6)
+            zs = pz if z_ok else _F(1e-6)
+            ux, uy = px / zs, py / zs
+            clamp_x = ux < -lim_x or ux > lim_x
+            clamp_y = uy < -lim_y or uy > lim_y
+            tx = min(max(ux, -lim_x), lim_x) * zs
+            ty = min(max(uy, -lim_y), lim_y) * zs
+            zs2 = zs * zs
+            j00, j02 = fx / zs, -fx * tx / zs2
+            j11, j12 = fy / zs, -fy * ty / zs2
+            for k in range(3):
+                t[0, k] = j00 * rc[0, k] + j02 * rc[2, k]
+                t[1, k] = j11 * rc[1, k] + j12 * rc[2, k]
+            qw, qx, qy, qz = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
+            qn = max(np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), _F(1e-12))
+            nw, nx, ny, nz = qw / qn, qx / qn, qy / qn, qz / qn
+            rg[0, 0], rg[0, 1], rg[0, 2], rg[1, 0], rg[1, 1], rg[1, 2], rg[2, 0], rg[2, 1], rg[2, 2] = \
+                _rotmat(nw, nx, ny, nz)
+            for k in range(3):
+                sc[k] = np.exp(log_scales[i, k])
             for j in range(3):
-                gm = _F(2.0) * (gsig[j, 0] * mm[0, k] + gsig[j, 1] * mm[1, k] + gsig[j, 2] * mm[2, k])
-                grg[j, k] = gm * sc[k]
-                gsk += gm * rg[j, k]
-            g_log_scales[i, k] = gsk * sc[k]
-        d = grg
-        gw = _F(2.0) * (-nz * d[0, 1] + ny * d[0, 2] + nz * d[1, 0] - nx * d[1, 2] - ny * d[2, 0] + nx * d[2, 1])
-        gx = _F(2.0) * (ny * d[0, 1] + nz * d[0, 2] + ny * d[1, 0] - _F(2.0) * nx * d[1, 1] - nw * d[1, 2]
-                        + nz * d[2, 0] + nw * d[2, 1] - _F(2.0) * nx * d[2, 2])
-        gy = _F(2.0) * (-_F(2.0) * ny * d[0, 0] + nx * d[0, 1] + nw * d[0, 2] + nx * d[1, 0] + nz * d[1, 2]
-                        - nw * d[2, 0] + nz * d[2, 1] - _F(2.0) * ny * d[2, 2])
-        gz = _F(2.0) * (-_F(2.0) * nz * d[0, 0] - nw * d[0, 1] + nx * d[0, 2] + nw * d[1, 0]
-                        - _F(2.0) * nz * d[1, 1] + ny * d[1, 2] + nx * d[2, 0] + ny * d[2, 1])
-        dot = nw * gw + nx * gx + ny * gy + nz * gz
-        g_quats[i, 0] = (gw - nw * dot) / qn
-        g_quats[i, 1] = (gx - nx * dot) / qn
-        g_quats[i, 2] = (gy - ny * dot) / qn
-        g_quats[i, 3] = (gz - nz * dot) / qn
-        # T = J Rc: dL/dJ = dL/dT Rc^T, dL/dRc += J^T dL/dT
-        gj00 = gt[0, 0] * rc[0, 0] + gt[0, 1] * rc[0, 1] + gt[0, 2] * rc[0, 2]
-        gj02 = gt[0, 0] * rc[2, 0] + gt[0, 1] * rc[2, 1] + gt[0, 2] * rc[2, 2]
-        gj11 = gt[1, 0] * rc[1, 0] + gt[1, 1] * rc[1, 1] + gt[1, 2] * rc[1, 2]
-        gj12 = gt[1, 0] * rc[2, 0] + gt[1, 1] * rc[2, 1] + gt[1, 2] * rc[2, 2]
-        for k in range(3):
-            g_pose[i, k] = j00 * gt[0, k]
-            g_pose[i, 3 + k] = j11 * gt[1, k]
-            g_pose[i, 6 + k] = j02 * gt[0, k] + j12 * gt[1, k]
-        # camera-space point: from J (through zs, tx, ty), the projected mean and z
-        gmx, gmy = g_m2[i, 0], g_m2[i, 1]
-        g_tx = gj02 * (-fx / zs2)
-        g_ty = gj12 * (-fy / zs2)
-        g_zs = (gj00 * (-fx / zs2) + gj02 * (_F(2.0) * fx * tx / (zs2 * zs)) + gj11 * (-fy / zs2)
-                + gj12 * (_F(2.0) * fy * ty / (zs2 * zs)) - (gmx * fx * px + gmy * fy * py) / zs2)
-        gpx = gmx * fx / zs
-        gpy = gmy * fy / zs
-        if clamp_x:  # tx = +-lim_x zs
-            g_zs += g_tx * (lim_x if ux > _F(0.0) else -lim_x)
-        else:
-            gpx += g_tx
-        if clamp_y:
-            g_zs += g_ty * (lim_y if uy > _F(0.0) else -lim_y)
-        else:
-            gpy += g_ty
-        gpz = g_z[i] + (g_zs if z_ok else _F(0.0))
-        for k in range(3):
-            g_means[i, k] = rc[0, k] * gpx + rc[1, k] * gpy + rc[2, k] * gpz
-        g_pose[i, 0] += gpx * mw0
-        g_pose[i, 1] += gpx * mw1
-        g_pose[i, 2] += gpx * mw2
-        g_pose[i, 3] += gpy * mw0
-        g_pose[i, 4] += gpy * mw1
-        g_pose[i, 5] += gpy * mw2
-        g_pose[i, 6] += gpz * mw0
-        g_pose[i, 7] += gpz * mw1
-        g_pose[i, 8] += gpz * mw2
-        g_pose[i, 9] = gpx
-        g_pose[i, 10] = gpy
-        g_pose[i, 11] = gpz
+                for k in range(3):
+                    mm[j, k] = rg[j, k] * sc[k]
+            for j in range(3):
+                for k in range(3):
+                    sig[j, k] = mm[j, 0] * mm[k, 0] + mm[j, 1] * mm[k, 1] + mm[j, 2] * mm[k, 2]
+            # symmetric upstream gradient of the 2x2 screen covariance (b is read once, off the diagonal)
+            gs00, gs01, gs11 = g_cov[i, 0], _F(0.5) * g_cov[i, 1], g_cov[i, 2]
+            # dL/dT = 2 Gs T Sigma ; dL/dSigma = T^T Gs T ; dL/dM = 2 dL/dSigma M
+            for r in range(2):
+                for k in range(3):
+                    ts[r, k] = t[r, 0] * sig[0, k] + t[r, 1] * sig[1, k] + t[r, 2] * sig[2, k]
+            for k in range(3):
+                gt[0, k] = _F(2.0) * (gs00 * ts[0, k] + gs01 * ts[1, k])
+                gt[1, k] = _F(2.0) * (gs01 * ts[0, k] + gs11 * ts[1, k])
+            if gaussians:
+                for j in range(3):
+                    for k in range(3):
+                        gsig[j, k] = (t[0, j] * (gs00 * t[0, k] + gs01 * t[1, k])
+                                      + t[1, j] * (gs01 * t[0, k] + gs11 * t[1, k]))
+                for k in range(3):
+                    gsk = _F(0.0)
+                    for j in range(3):
+                        gm = _F(2.0) * (gsig[j, 0] * mm[0, k] + gsig[j, 1] * mm[1, k] + gsig[j, 2] * mm[2, k])
+                        grg[j, k] = gm * sc[k]
+                        gsk += gm * rg[j, k]
+                    g_log_scales[i, k] = gsk * sc[k]
+                d = grg
+                gw = _F(2.0) * (-nz * d[0, 1] + ny * d[0, 2] + nz * d[1, 0] - nx * d[1, 2] - ny * d[2, 0]
+                                + nx * d[2, 1])
+                gx = _F(2.0) * (ny * d[0, 1] + nz * d[0, 2] + ny * d[1, 0] - _F(2.0) * nx * d[1, 1] - nw * d[1, 2]
+                                + nz * d[2, 0] + nw * d[2, 1] - _F(2.0) * nx * d[2, 2])
+                gy = _F(2.0) * (-_F(2.0) * ny * d[0, 0] + nx * d[0, 1] + nw * d[0, 2] + nx * d[1, 0] + nz * d[1, 2]
+                                - nw * d[2, 0] + nz * d[2, 1] - _F(2.0) * ny * d[2, 2])
+                gz = _F(2.0) * (-_F(2.0) * nz * d[0, 0] - nw * d[0, 1] + nx * d[0, 2] + nw * d[1, 0]
+                                - _F(2.0) * nz * d[1, 1] + ny * d[1, 2] + nx * d[2, 0] + ny * d[2, 1])
+                dot = nw * gw + nx * gx + ny * gy + nz * gz
+                g_quats[i, 0] = (gw - nw * dot) / qn
+                g_quats[i, 1] = (gx - nx * dot) / qn
+                g_quats[i, 2] = (gy - ny * dot) / qn
+                g_quats[i, 3] = (gz - nz * dot) / qn
+            # T = J Rc: dL/dJ = dL/dT Rc^T, dL/dRc += J^T dL/dT
+            gj00 = gt[0, 0] * rc[0, 0] + gt[0, 1] * rc[0, 1] + gt[0, 2] * rc[0, 2]
+            gj02 = gt[0, 0] * rc[2, 0] + gt[0, 1] * rc[2, 1] + gt[0, 2] * rc[2, 2]
+            gj11 = gt[1, 0] * rc[1, 0] + gt[1, 1] * rc[1, 1] + gt[1, 2] * rc[1, 2]
+            gj12 = gt[1, 0] * rc[2, 0] + gt[1, 1] * rc[2, 1] + gt[1, 2] * rc[2, 2]
+            for k in range(3):
+                g_pose[i, k] = j00 * gt[0, k]
+                g_pose[i, 3 + k] = j11 * gt[1, k]
+                g_pose[i, 6 + k] = j02 * gt[0, k] + j12 * gt[1, k]
+            # camera-space point: from J (through zs, tx, ty), the projected mean and z
+            gmx, gmy = g_m2[i, 0], g_m2[i, 1]
+            g_tx = gj02 * (-fx / zs2)
+            g_ty = gj12 * (-fy / zs2)
+            g_zs = (gj00 * (-fx / zs2) + gj02 * (_F(2.0) * fx * tx / (zs2 * zs)) + gj11 * (-fy / zs2)
+                    + gj12 * (_F(2.0) * fy * ty / (zs2 * zs)) - (gmx * fx * px + gmy * fy * py) / zs2)
+            gpx = gmx * fx / zs
+            gpy = gmy * fy / zs
+            if clamp_x:  # tx = +-lim_x zs
+                g_zs += g_tx * (lim_x if ux > _F(0.0) else -lim_x)
+            else:
+                gpx += g_tx
+            if clamp_y:
+                g_zs += g_ty * (lim_y if uy > _F(0.0) else -lim_y)
+            else:
+                gpy += g_ty
+            gpz = g_z[i] + (g_zs if z_ok else _F(0.0))
+            if gaussians:
+                for k in range(3):
+                    g_means[i, k] = rc[0, k] * gpx + rc[1, k] * gpy + rc[2, k] * gpz
+            g_pose[i, 0] += gpx * mw0
+            g_pose[i, 1] += gpx * mw1
+            g_pose[i, 2] += gpx * mw2
+            g_pose[i, 3] += gpy * mw0
+            g_pose[i, 4] += gpy * mw1
+            g_pose[i, 5] += gpy * mw2
+            g_pose[i, 6] += gpz * mw0
+            g_pose[i, 7] += gpz * mw1
+            g_pose[i, 8] += gpz * mw2
+            g_pose[i, 9] = gpx
+            g_pose[i, 10] = gpy
+            g_pose[i, 11] = gpz
 
 
 @njit(cache=True)
@@ -552,14 +589,17 @@ class _Project(torch.autograd.Function):
         g_z = torch.zeros(n) if g_z is None else g_z.float().contiguous()
         g_means, g_ls, g_q = torch.empty(n, 3), torch.empty(n, 3), torch.empty(n, 4)
         g_pose_rows = torch.empty(n, 12)  # [N, 12]
+        gaussians = any(ctx.needs_input_grad[:3])
         _project_bwd(mw.numpy(), ls.numpy(), q.numpy(), rc.numpy(), tc.numpy(), cam.numpy(), width, height,
-                     g_m2.numpy(), g_cov.numpy(), g_z.numpy(), g_means.numpy(), g_ls.numpy(), g_q.numpy(),
+                     g_m2.numpy(), g_cov.numpy(), g_z.numpy(), gaussians, g_means.numpy(), g_ls.numpy(), g_q.numpy(),
                      g_pose_rows.numpy())
         g_pose = torch.zeros(12)
         _sum_rows(g_pose_rows.numpy(), g_pose.numpy())
         g_w2c = torch.zeros(4, 4)
         g_w2c[:3, :3] = g_pose[:9].reshape(3, 3)
         g_w2c[:3, 3] = g_pose[9:]
+        if not gaussians:
+            g_means = g_ls = g_q = None
         return g_means, g_ls, g_q, g_w2c, None, None, None, None, None, None
 
 
@@ -615,8 +655,9 @@ class _Composite(torch.autograd.Function):
         pair_cov = torch.empty(n_pairs, dtype=torch.float32)
         pair_hits = torch.empty(n_pairs, dtype=torch.int32)
         pair_maxw = torch.empty(n_pairs, dtype=torch.float32)
+        order, bounds = _schedule(tile_start.numpy(), numba.get_num_threads())
         _forward(gid.numpy(), tile_start.numpy(), m2.numpy(), co.numpy(), op.numpy(), ft.numpy(),
-                 width, height, tiles_x, stats, acc.numpy(), t_final.numpy(), last.numpy(),
+                 width, height, tiles_x, stats, order, bounds, acc.numpy(), t_final.numpy(), last.numpy(),
                  pair_cov.numpy(), pair_hits.numpy(), pair_maxw.numpy())
         n = m2.shape[0]
         coverage = torch.zeros(n if stats else 0, dtype=torch.float32)
@@ -640,8 +681,9 @@ class _Composite(torch.autograd.Function):
         g_acc = torch.zeros(hw, N_FEAT) if g_acc is None else g_acc.contiguous().to(torch.float32)
         g_t = torch.zeros(hw) if g_t is None else g_t.contiguous().to(torch.float32)
         pair_grad = torch.empty(gid.shape[0], 10, dtype=torch.float32)  # [P, 10]
+        order, bounds = _schedule(tile_start.numpy(), numba.get_num_threads())
         _backward(gid.numpy(), tile_start.numpy(), m2.numpy(), co.numpy(), op.numpy(), ft.numpy(),
-                  width, height, tiles_x, t_final.numpy(), last.numpy(), g_acc.numpy(), g_t.numpy(),
+                  width, height, tiles_x, order, bounds, t_final.numpy(), last.numpy(), g_acc.numpy(), g_t.numpy(),
                   pair_grad.numpy())
         grad = torch.zeros(m2.shape[0], 10, dtype=torch.float32)  # [N, 10]
         _reduce_sum(gid.numpy(), pair_grad.numpy(), grad.numpy())

@@ -415,12 +415,12 @@ class System:
                 raise TrackingLost(f"tracking lost at frame {frame_index}: no Gaussian of the map is in view")
             opt.zero_grad(set_to_none=True)
             loss.backward()
-            loss_val = float(loss.detach())
             if mean2d_grads and out.means2d.grad is not None:
                 seen = (out.radius_px > 0).float()  # [N]
                 g2d_sum += out.means2d.grad.norm(dim=-1) * seen
                 g2d_n += seen
             if last:
+                loss_val = float(loss.detach())  # read once: the final iterate's loss is the one reported
                 if mean2d_grads:
                     self._on_tracked(frame_index, out, g2d_sum / g2d_n.clamp_min(1), g2d_sum, g2d_n)
                 else:
