@@ -128,7 +128,8 @@ def test_bad_route_file_is_a_one_line_dataset_error(tmp_path, text, match):
     with pytest.raises(DatasetError, match=match) as err:
         open_sequence({**TINY, "route_file": str(path), "n_frames": 5})
     assert "\n" not in str(err.value)
-    with pytest.raises(DatasetError, match="found no file"):
+    # a missing file is refused with the settings, before any dataset is opened
+    with pytest.raises(ConfigError, match="dataset.route_file: expected an existing file, found no file"):
         open_sequence({**TINY, "route_file": str(tmp_path / "missing.txt"), "n_frames": 5})
 
 
