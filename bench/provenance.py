@@ -12,7 +12,9 @@ from typing import Any
 
 import torch
 
-PACKAGES = ("pocketbench", "torch", "numpy", "evo", "torchmetrics", "hydra-core", "opencv-python-headless")
+PACKAGES = (
+    "pocketbench", "torch", "numpy", "evo", "torchmetrics", "hydra-core", "opencv-python-headless", "numba", "llvmlite",
+)
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -22,6 +24,23 @@ def _git(*args: str) -> str | None:
     except (OSError, subprocess.TimeoutExpired):
         return None
     return out.stdout.strip() if out.returncode == 0 else None
+
+
+def cpu_target() -> dict[str, str | None]:
+    """The instruction sets the compiled kernels were built for.
+
+    numba compiles for the host CPU (or ``NUMBA_CPU_NAME``) and torch dispatches its CPU kernels by
+    capability, so one commit and seed can give different floats on two machines (an AVX-512 host
+    and an AVX2 one); a figure that does not repeat elsewhere is read against these.
+    """
+    try:
+        import llvmlite.binding as llvm
+        import numba
+
+        numba_cpu = numba.config.CPU_NAME or llvm.get_host_cpu_name()
+    except ImportError:
+        numba_cpu = None
+    return {"numba_cpu": numba_cpu, "torch_cpu_capability": torch.backends.cpu.get_cpu_capability()}
 
 
 def collect(device: torch.device) -> dict[str, Any]:
@@ -39,6 +58,7 @@ def collect(device: torch.device) -> dict[str, Any]:
         "device": str(device),
         "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else platform.processor() or "cpu",
         "torch_threads": torch.get_num_threads(),
+        **cpu_target(),
         "python": platform.python_version(),
         "hostname": platform.node(),
     }

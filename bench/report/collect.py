@@ -144,7 +144,7 @@ def read_run(run_dir: Path) -> dict[str, Any]:
         if key not in row:  # metrics.keep_ratio repeats run.keep_ratio (bench.schema): the run key stands
             row[key] = value
     provenance = data.get("provenance") if isinstance(data.get("provenance"), dict) else {}
-    for key in ("git_commit", "git_dirty", "device"):
+    for key in ("git_commit", "git_dirty", "device", "numba_cpu", "torch_cpu_capability"):
         row[key] = provenance.get(key)
     versions = provenance.get("versions") if isinstance(provenance.get("versions"), dict) else {}
     for name, version in sorted(versions.items()):
