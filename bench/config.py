@@ -24,7 +24,7 @@ from bench.checkpoint import CheckpointConfig
 from bench.conf import group_files
 from bench.datasets import GROUP as DATASET_GROUP
 from bench.datasets import schema
-from bench.errors import StrategyError
+from bench.errors import ConfigError, StrategyError
 from bench.export import SAVE_MAPS
 from bench.slam.system import SlamConfig
 from bench.strategy import GROUP as STRATEGY_GROUP
@@ -50,9 +50,18 @@ class EvalConfig:
     rpe: bool = False
     lpips: bool = True  # computed only where AlexNet weights exist locally (see README)
     lpips_weights: str | None = setting(None, "path", nullable=True)
+    # milestones: after this many frames, the map as it is then is evaluated on the frames so far (ATE, and
+    # PSNR/SSIM/LPIPS on every `every`-th frame); one milestones.csv row each, outside the SLAM time and the
+    # memory windows. What a drive of that length would have scored, from one long run.
+    at_frames: list[int] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         check_rules(self, "eval.")
+        frames = list(self.at_frames)
+        ok = all(isinstance(n, int) and not isinstance(n, bool) and n >= 3 for n in frames)
+        if not ok or frames != sorted(set(frames)):
+            raise ConfigError(f"eval.at_frames: expected increasing frame counts >= 3 (e.g. [50,100,200]), "
+                              f"found {frames}")
 
 
 @dataclass

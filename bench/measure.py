@@ -337,9 +337,11 @@ class MemoryProbe:
                     self._live = _DispatchLive()
             self.torch_live_method = self._live.method
         self._closed = False
+        self._held: dict[str, float | None] = {}  # peaks read before a pause, merged into the window's
 
     def start_window(self) -> None:
         """Reset every peak to the current level."""
+        self._held = {}
         if self._is_cuda:
             torch.cuda.synchronize(self.device)
             torch.cuda.reset_peak_memory_stats(self.device)
@@ -368,7 +370,24 @@ class MemoryProbe:
             out["cpu_rss_peak_mib"] = _read_status_kib()["VmHWM"] / 1024.0
         elif self._sampler is not None:
             out["cpu_rss_peak_mib"] = self._sampler.peak_bytes() / MIB
+        for key, before in self._held.items():
+            if before is not None:
+                out[key] = before if out[key] is None else max(before, out[key])
         return out
+
+    @contextlib.contextmanager
+    def paused(self) -> Iterator[None]:
+        """Leave the work inside (a milestone evaluation) out of the window's peaks.
+
+        The peaks up to the pause stand and the window goes on from the level after it, so what the
+        work allocated and freed is never counted; what it leaves alive counts from then on.
+        """
+        held = self.end_window()
+        try:
+            yield
+        finally:
+            self.start_window()
+            self._held = held
 
     def live_mib(self) -> float | None:
         """Bytes held now, in MiB, by the allocator the headline peak reads: CUDA's allocated bytes,

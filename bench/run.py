@@ -162,6 +162,8 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: B
     else:  # rows written after the checkpoint go; the loop appends from there
         ckpt.truncate_rows(out / TRAJ_EST, 1, start["rows"]["traj"])
         ckpt.truncate_rows(out / schema.KEYFRAMES_FILE, 1, start["rows"]["keyframes"])
+        if (out / schema.MILESTONES_FILE).exists():
+            ckpt.truncate_rows(out / schema.MILESTONES_FILE, 1, start["rows"].get("milestones", 0))
         record["checkpoint"] = {**start["stats"], "every": conf.checkpoint.every,
                                 "resumed_from_frames": [*start["stats"]["resumed_from_frames"], start["frame"]]}
     write_json(metrics_path, record)
@@ -208,7 +210,8 @@ def _config_files() -> dict[str, str] | None:
     return config_files(HydraConfig.get().runtime.choices) if HydraConfig.initialized() else None
 def flushed_rows(out: Path) -> dict[str, int]:
     """Data rows on disk in the files a checkpoint counts (each has one header line)."""
-    return {"traj": ckpt.data_rows(out / TRAJ_EST, 1), "keyframes": ckpt.data_rows(out / schema.KEYFRAMES_FILE, 1)}
+    return {"traj": ckpt.data_rows(out / TRAJ_EST, 1), "keyframes": ckpt.data_rows(out / schema.KEYFRAMES_FILE, 1),
+            "milestones": ckpt.data_rows(out / schema.MILESTONES_FILE, 1)}
 
 
 def _previous(out: Path) -> dict[str, Any] | None:
@@ -338,7 +341,8 @@ def write_checkpoint(cfg: RunConfig, parts: Parts, drive: Drive, out: Path, reco
                                       "between": between, "phase_s": parts.timer.totals(),
                                       "phase_n": parts.timer.counts()})},
         "rng": ckpt.global_rng_state(),
-        "rows": {"traj": n_done, "keyframes": len(drive.windows)},
+        "rows": {"traj": n_done, "keyframes": len(drive.windows),
+                 "milestones": sum(1 for n in cfg.eval.at_frames if n <= n_done)},
         "stats": {**stats, "written": stats["written"] + 1},  # as they will be once this one is on disk
     }  # fmt: skip
     cost = ckpt.save(out, payload, cfg.checkpoint.keep)
@@ -391,7 +395,9 @@ def drive_frames(cfg: RunConfig, parts: Parts, out: Path, record: dict[str, Any]
     every = cfg.checkpoint.every
     parts.probe.start_window()
     with open(out / schema.KEYFRAMES_FILE, "a" if start else "w", newline="") as fh, \
-            TumAppender(out / TRAJ_EST, append=start is not None) as traj:
+            TumAppender(out / TRAJ_EST, append=start is not None) as traj, \
+            FlushedRows(out / schema.MILESTONES_FILE, schema.MILESTONE_COLUMNS, start is not None,
+                        bool(cfg.eval.at_frames)) as milestones:
         writer = csv.DictWriter(fh, fieldnames=schema.KEYFRAME_COLUMNS)
         if start is None:
             writer.writeheader()
@@ -420,6 +426,10 @@ def drive_frames(cfg: RunConfig, parts: Parts, out: Path, record: dict[str, Any]
                     writer.writerow(row)
                     fh.flush()
                     drive.windows.append(row)
+                if i + 1 in cfg.eval.at_frames:  # before the checkpoint, which counts its row
+                    with parts.probe.paused():
+                        milestones.writerow(milestone_row(cfg, parts, drive, out))
+                if res.is_keyframe:
                     if cfg.save_maps == "every_keyframe":
                         save_snapshot(out, res.keyframe_index, system.map)
                     metrics["num_keyframes"] = len(drive.windows)
@@ -446,6 +456,49 @@ def drive_frames(cfg: RunConfig, parts: Parts, out: Path, record: dict[str, Any]
             bar.close()
             parts.probe.close()
     return drive
+
+
+class FlushedRows:
+    """A csv file written a row at a time and flushed after each (appended to on resume); no file when off."""
+
+    def __init__(self, path: Path, columns: list[str], append: bool, on: bool = True) -> None:
+        self.path, self.columns, self.append, self.on = path, columns, append, on
+        self._fh: Any = None
+
+    def __enter__(self) -> FlushedRows:
+        if self.on:
+            self._fh = open(self.path, "a" if self.append else "w", newline="")
+            self._writer = csv.DictWriter(self._fh, fieldnames=self.columns)
+            if not self.append:
+                self._writer.writeheader()
+                self._fh.flush()
+        elif not self.append:
+            self.path.unlink(missing_ok=True)  # a previous run's rows are not this run's
+        return self
+
+    def writerow(self, row: dict[str, Any]) -> None:
+        self._writer.writerow(row)
+        self._fh.flush()
+
+    def __exit__(self, *exc: object) -> None:
+        if self._fh is not None:
+            self._fh.close()
+
+
+@torch.no_grad()
+def milestone_row(cfg: RunConfig, parts: Parts, drive: Drive, out: Path) -> dict[str, Any]:
+    """The map and trajectory so far, scored as if the drive ended here (``eval.at_frames``)."""
+    t0 = time.perf_counter()
+    system = parts.system
+    n_done = len(drive.timestamps_s)
+    est_c2w = [inverse(p.detach().double().cpu()) for p in system.poses[:n_done]]
+    res = _evaluate(cfg, out, parts, est_c2w, drive, system.device, write_gt=False)
+    mem = schema.memory_summary(drive.windows, system.device.type)
+    row = {k: res.get(k) for k in ("path_length_m", "ate_rmse_m", "psnr_db", "ssim", "lpips", "eval_frames")}
+    row.update(frames=n_done, n_gaussians=len(system.map), peak_mem_mib=mem[schema.PEAK_FIELD],
+               state_mib=round(system.map.state_bytes() / schema.MIB, 4))
+    row["eval_s"] = round(time.perf_counter() - t0, 3)
+    return row
 
 
 def keyframe_row(parts: Parts, res: FrameResult, frame_index: int, between: dict[str, Any]) -> dict[str, Any]:
@@ -583,6 +636,7 @@ def _evaluate(
     drive: Drive,
     device: torch.device,
     images: bool = True,
+    write_gt: bool = True,
 ) -> dict[str, Any]:
     """ATE (evo), PSNR/SSIM (torchmetrics), LPIPS when weights exist; none of it is SLAM time.
 
@@ -603,7 +657,8 @@ def _evaluate(
         gt_world = torch.stack([g.double() for g in drive.gt_c2w])
         gt_world = inverse(gt_world[0]).expand_as(gt_world) @ gt_world  # first camera = origin, like the estimate
         gt = Trajectory.from_c2w(ts, gt_world.numpy())
-        write_tum(out / "traj_gt.txt", gt)
+        if write_gt:
+            write_tum(out / "traj_gt.txt", gt)
         res.update(ate(est, gt, align=ev.ate_align, max_diff_s=ev.max_diff_s))
         res["ate_first_frame"], res["ate_last_frame"] = 0, len(est_c2w) - 1  # inclusive, tracked-frame positions
         res["path_length_m"] = round(float(np.linalg.norm(np.diff(gt.positions_m, axis=0), axis=1).sum()), 4)

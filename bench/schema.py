@@ -13,6 +13,7 @@ from typing import Any
 
 METRICS_FILE = "metrics.json"
 KEYFRAMES_FILE = "keyframes.csv"
+MILESTONES_FILE = "milestones.csv"
 MIB = float(2**20)  # bytes per MiB: every *_mib figure
 
 STATUSES: tuple[str, ...] = ("ok", "lost", "failed", "interrupted", "running")
@@ -81,6 +82,20 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
           "keyframe opened (their surface points, from the observed depth, projected into this view)"),
     Field("diag_s", "s", "time spent on the pruning diagnostics above (included in `prune_s`)"),
 )
+MILESTONE_FIELDS: tuple[Field, ...] = (
+    Field("frames", "", "frames tracked when the row was taken (an `eval.at_frames` entry)"),
+    Field("path_length_m", "m", "ground-truth path length over those frames"),
+    Field("ate_rmse_m", "m", "ATE RMSE over those frames (`eval.ate_align`): what a drive this long scores"),
+    Field("psnr_db", "dB", "PSNR of the map as it was then, on every `eval.every`-th of those frames"),
+    Field("ssim", "", "... SSIM"),
+    Field("lpips", "", "... LPIPS (null without local AlexNet weights)"),
+    Field("eval_frames", "", "frames rendered for the row"),
+    Field("n_gaussians", "", "Gaussians in the map then"),
+    Field("state_mib", "MiB", "Gaussian state then (params, grads, Adam moments, strategy state)"),
+    Field("peak_mem_mib", "MiB", "the headline peak over the keyframe windows so far (as `peak_mem_mib`)"),
+    Field("eval_s", "s", "time the row took (not SLAM time)"),
+)
+MILESTONE_COLUMNS: list[str] = [f.name for f in MILESTONE_FIELDS]
 MEMORY_PART_COLUMNS: tuple[str, ...] = ("mem_state_mib", "mem_keyframes_mib", "mem_other_mib", "mem_work_mib")
 PRUNE_COUNT_COLUMNS: tuple[str, ...] = ("n_redundant", "n_pruned_redundant", "n_hole_px", "n_reseeded_holes")
 PRUNE_QUARTILE_COLUMNS: tuple[str, ...] = (
@@ -190,6 +205,10 @@ def markdown() -> str:
         " pruning); memory columns are null where the probe cannot measure on this device:",
         "",
         *_table(KEYFRAME_FIELDS),
+        "",
+        f"`{MILESTONES_FILE}`, one row per `eval.at_frames` entry reached (absent without it):",
+        "",
+        *_table(MILESTONE_FIELDS),
     ]
     return "\n".join(lines)
 

@@ -166,3 +166,20 @@ def test_phase_timer_sums_per_phase() -> None:
     assert timer.counts() == {"tracking": 2, "mapping": 2}
     timer.reset()
     assert timer.totals() == {} and timer.counts() == {}
+
+
+@pytest.mark.parametrize("method", ["profiler-memory", "dispatch-mode"])
+def test_a_paused_stretch_is_left_out_of_the_window_peak(method: str) -> None:
+    """A milestone evaluation inside a keyframe window must not become that window's peak, while
+    what the window held before the pause still counts."""
+    with MemoryProbe(CPU, live_method=method) as probe:
+        base = _window(probe)["torch_live_peak_mib"]
+        probe.start_window()
+        before = torch.ones(32 * 2**20 // 4)  # [n] float32, 32 MiB, freed before the pause
+        del before
+        with probe.paused():
+            inside = torch.ones(BIG_MIB * 2**20 // 4)  # [n] float32, freed inside the pause
+            del inside
+        peak = probe.end_window()["torch_live_peak_mib"]
+        assert peak - base == pytest.approx(32, abs=1)
+        assert _window(probe)["torch_live_peak_mib"] - base < 1  # the next window starts clean
