@@ -115,6 +115,11 @@ def repeatable(seed: int, threads: int | None, mode: str, device: torch.device) 
             record["note"] = "threads=null: the machine's default thread count; results may differ between machines"
         yield record
     finally:
+        # the SLAM system flushes denormals for speed (bench/slam/system.py); that CPU mode is process-wide
+        # and must not outlive the run: under it scipy's cKDTree build recurses without end on the grid
+        # route's street points (a segfault in the next run of a sweep), and a run's inputs would depend
+        # on whether a run came before it in the same process
+        torch.set_flush_denormal(False)
         torch.set_num_threads(saved[0])
         torch.use_deterministic_algorithms(saved[1], warn_only=saved[2])
         cv2.setNumThreads(saved[3])

@@ -5,6 +5,8 @@ from __future__ import annotations
 import csv
 import json
 import random
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +43,29 @@ def test_repeatable_sets_threads_and_kernels_then_restores_them():
         assert record == {"mode": "strict", "deterministic": True, "threads": 1, "threads_fixed": True,
                           "torch_deterministic_algorithms": True, "seed": 3}  # fmt: skip
     assert (torch.get_num_threads(), torch.are_deterministic_algorithms_enabled()) == (threads, det)
+
+
+def test_repeatable_leaves_denormals_as_it_found_them():
+    """The system flushes denormals during a run; after it a denormal is a denormal again."""
+    with repeatable(0, 1, "strict", CPU):
+        torch.set_flush_denormal(True)  # as bench/slam/system.py does
+        assert float((np.array([1e-310]) * 1.0)[0]) == 0.0
+    assert float((np.array([1e-310]) * 1.0)[0]) != 0.0
+
+
+def test_a_grid_drive_opens_after_a_run_in_the_same_process():
+    """Under a leftover flush-denormal mode scipy's cKDTree build recursed until the stack ran out on the
+    grid route's street points: the second run of a sweep died with a segfault (a subprocess here, so a
+    regression fails this test, not the whole session)."""
+    code = ("import torch\n"
+            "from bench.determinism import repeatable\n"
+            "from bench.datasets.synthetic import SyntheticConfig, open_sequence\n"
+            "with repeatable(0, 1, 'strict', torch.device('cpu')):\n"
+            "    torch.set_flush_denormal(True)\n"
+            "open_sequence(SyntheticConfig(route='grid', width=96, height=64, n_frames=12))\n"
+            "print('opened')\n")  # fmt: skip
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0 and "opened" in proc.stdout, (proc.returncode, proc.stderr[-2000:])
 
 
 def test_fast_mode_is_opt_in_and_recorded_as_not_deterministic():
