@@ -46,7 +46,8 @@ def run_keys(cfg: RunConfig | Mapping[str, Any], tree: Mapping[str, Any] | None 
         "dataset": dataset_name(cfg.dataset),
         "seq": canonical_seq(dataset_name(cfg.dataset), sequence_name(cfg)),
         "seed": cfg.seed,
-        "keep_ratio": cfg.prune.keep_ratio if prunes else None,  # no pruning, no ratio
+        # no pruning, or an absolute target (prune.n_target), no ratio: such runs never pool with ratio runs
+        "keep_ratio": cfg.prune.keep_ratio if prunes and cfg.prune.target == "ratio" else None,
         "slam_preset": cfg.slam.name,  # runs of different presets never pool
     }
     if tree is not None:

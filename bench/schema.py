@@ -34,7 +34,8 @@ RUN_FIELDS: tuple[Field, ...] = (
     Field("dataset", "", "dataset name", "text"),
     Field("seq", "", "sequence as written, or the dataset's default; null only if it has none", "text"),
     Field("seed", "", "run seed"),
-    Field("keep_ratio", "", "`prune.keep_ratio` given to the strategy; null without `+strategy`"),
+    Field("keep_ratio", "", "`prune.keep_ratio` given to the strategy; null without `+strategy` or with "
+          "`prune.target=absolute`"),
     Field("slam_preset", "", "`slam.name`, the backend preset (runs of different presets never pool)", "text"),
     Field("config_hash", "", "hash of the resolved config (what resume compares)", "text"),
     Field("code_version", "", "commit, code-tree hash, dirty flag, diff hash (resume ignores the commit)", "object"),
@@ -141,7 +142,7 @@ METRIC_FIELDS: tuple[Field, ...] = (
     Field("eval_s", "s", "evaluation time: ATE, rendering, PSNR/SSIM/LPIPS"),
     Field("wall_s", "s", "the whole run, from loading to figures"),
     Field("num_frames", "", "frames tracked"),
-    Field("keep_ratio", "", "as `run.keep_ratio` (null when nothing is pruned)"),
+    Field("keep_ratio", "", "as `run.keep_ratio` (null when nothing is pruned or the target is absolute)"),
     Field("num_keyframes", "", "keyframe windows (rows of keyframes.csv)"),
     Field("gaussians_final", "", "Gaussians in the final map"),
     Field("gaussians_peak", "", "largest `n_gaussians` over the windows"),

@@ -10,6 +10,7 @@ import csv
 import json
 from pathlib import Path
 
+import pandas as pd
 import pytest
 
 from bench.config import EvalConfig
@@ -77,3 +78,25 @@ def test_killed_run_resumes_to_the_same_milestone_rows(pair: tuple[Path, Path], 
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert "resuming" in resumed.stdout + resumed.stderr
     assert milestone_rows(run_dir) == milestone_rows(with_ms)
+
+
+@pytest.mark.slow
+def test_report_of_milestone_runs_has_the_scale_section_and_redraws(pair: tuple[Path, Path], tmp_path: Path) -> None:
+    from bench.report.build import make_report, redraw
+
+    plain, with_ms = pair
+    out = tmp_path / "report"
+    result = make_report([plain, with_ms], out)
+    names = {p.name for p in result.files}
+    assert {"milestones.csv", "scale.md"} <= names
+    assert any(n.startswith("memory_vs_distance_") for n in names)
+    assert any(n.startswith("accuracy_vs_distance_") for n in names)
+    text = (out / "scale.md").read_text()
+    assert "Gaussians / 100 m" in text and "Ours (w/ Tile Budget)" in text
+    assert "No baseline runs at the milestones" in text  # pocket only: no answer is made up
+    stored = pd.read_csv(out / "milestones.csv")
+    assert len(stored) == len(milestone_rows(with_ms))
+    for path in (out / "memory_vs_distance_synthetic_0.png", out / "accuracy_vs_distance_synthetic_0.png"):
+        path.unlink()
+    redrawn = {p.name for p in redraw(out).files}  # from the folder alone: keyframes.csv and milestones.csv
+    assert {"memory_vs_distance_synthetic_0.png", "accuracy_vs_distance_synthetic_0.png"} <= redrawn

@@ -18,6 +18,7 @@ from bench.report.names import use_method_names
 from bench.report.paper import load_paper_tables
 from bench.report.plots import DPI, make_plots, read_keyframes
 from bench.report.render import tables_markdown, to_latex
+from bench.report.scale import MILESTONES_FILE, milestone_rows, scale_markdown
 from bench.report.settings import mixed_settings, settings_markdown
 from bench.report.stats import confidence_interval
 from bench.report.tables import SELECTABLE_METRICS, Table, build_tables
@@ -121,7 +122,15 @@ def _make_report(
     files.append(out / "stats.csv")
     seed_statistics(tables, baseline).to_csv(files[-1], index=False)
 
-    files += make_plots(runs, out, warnings.append, formats, dpi)
+    milestones = milestone_rows(runs, warnings.append)
+    long_drives = bool(len(milestones))
+    if long_drives:  # runs made with eval.at_frames: the scale section (bench/report/scale.py)
+        files.append(out / MILESTONES_FILE)
+        milestones.to_csv(files[-1], index=False)
+        files.append(out / "scale.md")
+        kf = {str(p): k for p in runs["path"] if (k := read_keyframes(Path(p), warnings.append)) is not None}
+        files[-1].write_text(scale_markdown(runs, kf, milestones, baseline), encoding="utf-8")
+    files += make_plots(runs, out, warnings.append, formats, dpi, long_drives=long_drives)
     return ReportResult(out, runs, tables, files, collection.skipped, warnings)
 
 
@@ -167,7 +176,16 @@ def redraw(report_dir: Path, formats: tuple[str, ...] = ("png",), dpi: int = DPI
     if not len(rows):
         warnings.append(f"no {KEYFRAMES_FILE} in '{report_dir}': per-keyframe figures need the run dirs")
     keyframes = {str(p): g.drop(columns="path").reset_index(drop=True) for p, g in rows.groupby("path")}
-    files = make_plots(runs, report_dir, warnings.append, formats, dpi, keyframes=keyframes)
+    ms_path = report_dir / MILESTONES_FILE
+    milestones = {}
+    if ms_path.is_file():
+        try:
+            ms_rows = pd.read_csv(ms_path, dtype={"path": str})
+        except (OSError, ValueError) as exc:
+            raise ReportError(f"cannot read '{ms_path}': {exc}") from None
+        milestones = {str(p): g.drop(columns="path").reset_index(drop=True) for p, g in ms_rows.groupby("path")}
+    files = make_plots(runs, report_dir, warnings.append, formats, dpi, keyframes=keyframes, milestones=milestones,
+                       long_drives=bool(milestones))
     return ReportResult(report_dir, runs, [], files, [], warnings)
 
 

@@ -20,7 +20,7 @@ from bench import schema
 from bench.datasets import canonical_seq
 from bench.errors import ReportError
 from bench.record import is_leftover
-from bench.report.names import method_name
+from bench.report.names import method_name, synthetic_drive
 from bench.report.settings import read_settings
 
 REQUIRED_RUN_KEYS: tuple[str, ...] = ("strategy", "dataset")
@@ -150,6 +150,8 @@ def read_run(run_dir: Path) -> dict[str, Any]:
     for name, version in sorted(versions.items()):
         row[f"version_{name}"] = version
     row.update(read_settings(run_dir, provenance.get("device")))
+    if row.get("dataset") == "synthetic" and row.get("seq") is not None:
+        row["seq"] = synthetic_drive(row["seq"], row.get("dataset.route"), row.get("dataset.route_file"))
     row["path"] = str(run_dir)
     return row
 

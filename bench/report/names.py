@@ -5,6 +5,8 @@ from __future__ import annotations
 import re
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
 
 # Built-in strategies in the paper's row order (Tables I-IV); third-party names follow, sorted.
 METHOD_NAMES: dict[str, str] = {
@@ -45,6 +47,16 @@ def column_name(dataset: str, seq: str) -> str:
     """A table column header for a sequence: the synthetic scene is named by its seed (``scene 0``),
     which a bare ``0`` would not say."""
     return f"scene {seq}" if dataset == "synthetic" else str(seq)
+
+
+def synthetic_drive(seq: str, route: Any = None, route_file: Any = None) -> str:
+    """The synthetic sequence a report column stands for: the scene seed, and the route where it is not
+    the default straight street, so a grid drive and one along a KITTI track never pool."""
+    if isinstance(route_file, str) and route_file.strip():
+        return f"{seq} on {Path(route_file).stem}"
+    if isinstance(route, str) and route not in ("", "straight"):
+        return f"{seq} {route}"
+    return str(seq)
 
 
 def strategy_rank(strategy: str) -> tuple[int, str]:

@@ -54,7 +54,7 @@ DENSITY_CELLS = 160  # heatmap cells along the longer image side (Fig. 4 is a co
 
 FORMATS: tuple[str, ...] = ("png", "pdf", "svg")
 # What the figure files are made as; ``make_plots`` sets it for the duration of one report.
-_output: dict[str, Any] = {"formats": ("png",), "dpi": DPI, "keyframes": {}}
+_output: dict[str, Any] = {"formats": ("png",), "dpi": DPI, "keyframes": {}, "milestones": {}, "long_drives": False}
 # keyframes.csv memory columns as a reader knows them
 PROBE_NAMES: dict[str, str] = {
     "cuda_alloc_peak_mib": "CUDA allocator",
@@ -102,7 +102,27 @@ def read_keyframes(run_dir: Path, warn: Warn) -> pd.DataFrame | None:
     if "state_mib" not in frame.columns or not ({"frame", "kf"} & set(frame.columns)):
         warn(f"skipped {path} in plots: expected columns kf/frame and state_mib, found {list(frame.columns)}")
         return None
-    return frame
+    distance = distance_driven(Path(run_dir), frame)
+    return frame if distance is None else frame.assign(distance_m=distance)
+
+
+def distance_driven(run_dir: Path, keyframes: pd.DataFrame) -> np.ndarray | None:
+    """Ground-truth metres driven up to each keyframe (from traj_gt.txt), None without ground truth.
+
+    traj_gt.txt has one line per tracked frame from the first, which is keyframe 0's frame.
+    """
+    path = run_dir / "traj_gt.txt"
+    if "frame" not in keyframes.columns or keyframes.empty or not path.is_file():
+        return None
+    try:
+        xyz = np.loadtxt(path, comments="#", ndmin=2)[:, 1:4]  # [F, 3] m
+    except (OSError, ValueError):
+        return None
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xyz, axis=0), axis=1))])  # [F] m
+    pos = keyframes["frame"].to_numpy(dtype=int) - int(keyframes["frame"].iloc[0])
+    if pos.min() < 0 or pos.max() >= len(along):
+        return None
+    return np.round(along[pos], 4)
 
 
 def peak_column(run: pd.Series, keyframes: pd.DataFrame) -> str | None:
@@ -124,9 +144,10 @@ KfValue = Callable[[pd.Series, pd.DataFrame], "pd.Series | None"]  # one run's p
 
 
 def seed_band(
-    vr: pd.DataFrame, value: KfValue, warn: Warn, cache: dict[str, pd.DataFrame | None]
+    vr: pd.DataFrame, value: KfValue, warn: Warn, cache: dict[str, pd.DataFrame | None], x_col: str = "frame"
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, bool] | None:
-    """(frames, mean, std, n seeds, lost) of a per-keyframe quantity over a variant's seeds.
+    """(x, mean, std, n seeds, lost) of a per-keyframe quantity over a variant's seeds; x is ``x_col``
+    of keyframes.csv (the frame, or ``distance_m``).
 
     Seeds may key-frame at different frames: each seed's series is interpolated onto the union of
     their frames, within its own range only, and the std needs two seeds at a frame (else NaN).
@@ -143,7 +164,9 @@ def seed_band(
         y = value(run, kf)
         if y is None:
             continue
-        x = (kf["frame"] if "frame" in kf.columns else kf["kf"]).to_numpy(dtype=float)
+        if x_col not in kf.columns and x_col != "frame":
+            continue
+        x = (kf[x_col] if x_col in kf.columns else kf["kf"]).to_numpy(dtype=float)
         series.append((x, np.asarray(y, dtype=float)))
     if not series:
         return None
@@ -165,6 +188,13 @@ def _peak(run: pd.Series, kf: pd.DataFrame) -> pd.Series | None:
     return None if column is None else kf[column]
 
 
+X_LABELS = {"frame": "frame", "distance_m": "distance driven [m]", "path_length_m": "distance driven [m]"}
+MEMORY_VS_DISTANCE: tuple[str, str, tuple[tuple[str, KfValue], ...]] = (
+    "memory_vs_distance", "Memory against distance", (
+        ("Gaussians in the map [thousands]",
+         lambda _r, kf: kf["n_gaussians"] / 1e3 if "n_gaussians" in kf.columns else None),
+        ("peak memory [MiB]", lambda r, kf: _peak(r, kf)),
+    ))  # fmt: skip
 # (file stem, figure title, rows: (y label, value of one run's keyframes.csv))
 PER_KEYFRAME: tuple[tuple[str, str, tuple[tuple[str, KfValue], ...]], ...] = (
     ("memory_per_keyframe", "Memory per keyframe", (
@@ -181,17 +211,19 @@ PER_KEYFRAME: tuple[tuple[str, str, tuple[tuple[str, KfValue], ...]], ...] = (
 
 
 def plot_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn, stem: str, title: str,
-                      rows: tuple[tuple[str, KfValue], ...]) -> Path | None:  # fmt: skip
+                      rows: tuple[tuple[str, KfValue], ...], x_col: str = "frame",
+                      cache: dict[str, pd.DataFrame | None] | None = None) -> Path | None:  # fmt: skip
     """Small multiples of per-keyframe quantities (paper Fig. 5): one column of panels per preset
     (and per keep-ratio sweep), one row per quantity, y shared along a row; every seed of a
-    variant pooled into a mean line with a ± std band."""
+    variant pooled into a mean line with a ± std band. ``cache``: run path -> the table to read
+    instead of its keyframes.csv (the milestone rows)."""
     one = runs[runs["seq"] == seq]
     found = variants(runs)  # dataset-wide, so labels match the tables
     panels = [p for p in panel_groups(found) if any(len(variant_runs(one, v)) for v in p.variants)]
     if not panels:
         return None
     known = sorted(set(runs["strategy"]))
-    cache: dict[str, pd.DataFrame | None] = {}
+    cache = {} if cache is None else cache
     fig = new_figure(2.0 + 3.3 * len(panels), 1.0 + 2.3 * len(rows))
     axes = fig.subplots(len(rows), len(panels), squeeze=False, sharex=True, sharey="row")
     drawn = most_seeds = 0
@@ -203,7 +235,7 @@ def plot_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Path, war
             ls, marker = ratio_style(variant, panel)
             colour = strategy_colour(variant.strategy, known)
             for row, (_, value) in enumerate(rows):
-                got = seed_band(vr, value, warn, cache)
+                got = seed_band(vr, value, warn, cache, x_col)
                 if got is None:
                     continue
                 x, mean, std, n, lost = got
@@ -218,7 +250,7 @@ def plot_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Path, war
                 if column:
                     probes.add(column)
         axes[0, col].set_title(panel.title or f"{dataset_name(dataset)} {seq}")
-        axes[-1, col].set_xlabel("frame")
+        axes[-1, col].set_xlabel(X_LABELS.get(x_col, x_col))
     if not drawn:
         return None
     for row, (label, _) in enumerate(rows):
@@ -511,6 +543,27 @@ def plot_pruned(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: War
         written.append(_save(fig, out / f"pruned_{file_token(dataset)}_{file_token(seq)}{token}_kf{kf:03d}.png"))
     return written
 
+def plot_milestones(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn) -> Path | None:
+    """ATE and PSNR at each ``eval.at_frames`` milestone against the distance driven by then: what
+    drives of those lengths score, from the same runs."""
+    from bench.report.scale import read_milestones
+
+    one = runs[runs["seq"] == seq]
+    cache: dict[str, pd.DataFrame | None] = {}
+    for path in one["path"]:
+        cache[str(path)] = _output["milestones"].get(str(path))
+        if cache[str(path)] is None:
+            cache[str(path)] = read_milestones(Path(path), warn)
+    if not any(v is not None and len(v) for v in cache.values()):
+        return None
+    rows: tuple[tuple[str, KfValue], ...] = (
+        ("ATE RMSE [m]\n(the trajectory so far)", lambda _r, ms: ms["ate_rmse_m"]),
+        ("PSNR [dB]\n(the map then, frames so far)", lambda _r, ms: ms["psnr_db"]),
+    )
+    return plot_per_keyframe(runs, dataset, seq, out, warn, "accuracy_vs_distance", "Accuracy against distance",
+                             rows, x_col="path_length_m", cache=cache)
+
+
 def _dataset_average(runs: pd.DataFrame, metric: str) -> tuple[float | None, int]:
     """Mean over sequences of the seed means of ok runs (the tables' Avg), and how many
     sequences it covers."""
@@ -677,17 +730,20 @@ def plot_pareto(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
 
 def make_plots(
     runs: pd.DataFrame, out: Path, warn: Warn, formats: tuple[str, ...] = ("png",), dpi: int = DPI,
-    keyframes: dict[str, pd.DataFrame] | None = None,
+    keyframes: dict[str, pd.DataFrame] | None = None, milestones: dict[str, pd.DataFrame] | None = None,
+    long_drives: bool = False,
 ) -> list[Path]:
-    """Every figure the runs support, in each of ``formats``; finished runs only. ``keyframes``
-    (run path -> its keyframes.csv rows) stands in for run dirs that are gone (``redraw``)."""
+    """Every figure the runs support, in each of ``formats``; finished runs only. ``keyframes`` and
+    ``milestones`` (run path -> its rows) stand in for run dirs that are gone (``redraw``).
+    ``long_drives``: also memory against distance and accuracy at the milestones (``eval.at_frames``)."""
     bad = [f for f in formats if f not in FORMATS]
     if bad or not formats:
         raise ReportError(f"expected figure formats among {', '.join(FORMATS)}, found {', '.join(formats) or '(none)'}")
     if dpi <= 0:
         raise ReportError(f"expected a positive dpi, found {dpi}")
     previous = dict(_output)
-    _output.update(formats=tuple(formats), dpi=int(dpi), keyframes=keyframes or {})
+    _output.update(formats=tuple(formats), dpi=int(dpi), keyframes=keyframes or {}, milestones=milestones or {},
+                   long_drives=long_drives)
     try:
         first = _make_plots(runs, out, warn)
     finally:
@@ -703,6 +759,9 @@ def _make_plots(runs: pd.DataFrame, out: Path, warn: Warn) -> list[Path]:
         for seq in sorted(set(ds["seq"]), key=lambda s: sequence_sort_key(dataset, s)):
             for stem, title, rows in PER_KEYFRAME:
                 written.append(plot_per_keyframe(ds, dataset, seq, out, warn, stem, title, rows))
+            if _output["long_drives"]:  # the scale study's figures (bench/report/scale.py)
+                written.append(plot_per_keyframe(ds, dataset, seq, out, warn, *MEMORY_VS_DISTANCE, x_col="distance_m"))
+                written.append(plot_milestones(ds, dataset, seq, out, warn))
             written.append(plot_density(ds, dataset, seq, out, warn))
             written.append(plot_trajectory(ds, dataset, seq, out, warn))
             written += plot_pruned(ds, dataset, seq, out, warn)

@@ -148,7 +148,7 @@ def variants(runs: pd.DataFrame) -> list[Variant]:
     for strategy, keep, preset in sorted(triples, key=order):
         label = method_name(strategy)
         if ratios[strategy, preset] > 1:
-            label += f" (keep {keep:g})" if keep is not None else " (keep n/a)"
+            label += f" (keep {keep:g})" if keep is not None else " (absolute target)"
         if several_presets:
             label += f" [{preset}]"
         out.append(Variant(strategy, keep, label, preset))

@@ -1,0 +1,49 @@
+"""Growth against distance: the slope fit and the distance at each keyframe, on values with a known answer."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from bench.report.plots import distance_driven
+from bench.report.scale import _reference_length, run_slopes, sequence_lengths
+
+
+def test_slopes_are_per_100_m_and_skip_the_first_keyframe() -> None:
+    d = np.array([0.0, 10.0, 20.0, 30.0, 40.0])
+    kf = pd.DataFrame({"distance_m": d, "n_gaussians": [5000, 1200, 1400, 1600, 1800],  # kf 0: the first seeding
+                       "torch_live_peak_mib": 2.0 + 0.05 * d})  # fmt: skip
+    got = run_slopes(kf, "torch_live_peak_mib")
+    assert got["gaussians_per_100m"] == pytest.approx(2000.0)
+    assert got["gaussians_at_0m"] == pytest.approx(1000.0)
+    assert got["peak_mib_per_100m"] == pytest.approx(5.0)
+    assert got["distance_m"] == 40.0
+    assert np.isnan(run_slopes(kf, None)["peak_mib_per_100m"])
+    assert run_slopes(kf.iloc[:3], "torch_live_peak_mib") is None  # two points after the first: no line
+
+
+def test_distance_at_each_keyframe_comes_from_the_ground_truth(tmp_path: Path) -> None:
+    xyz = np.array([[0, 0, 0], [0, 0, 1], [0, 0, 2], [3, 0, 6], [3, 0, 7]], dtype=float)  # steps 1, 1, 5, 1 m
+    rows = [f"{i * 0.1:.1f} {x} {y} {z} 0 0 0 1" for i, (x, y, z) in enumerate(xyz)]
+    (tmp_path / "traj_gt.txt").write_text("# timestamp tx ty tz qx qy qz qw\n" + "\n".join(rows) + "\n")
+    kf = pd.DataFrame({"kf": [0, 1, 2], "frame": [10, 12, 14]})  # the drive starts at dataset frame 10
+    assert distance_driven(tmp_path, kf).tolist() == [0.0, 2.0, 8.0]
+    assert distance_driven(tmp_path, pd.DataFrame({"kf": [0, 1], "frame": [10, 16]})) is None  # past the end
+
+
+def test_whole_sequence_lengths_are_the_ground_truth_ones() -> None:
+    lengths = sequence_lengths()
+    kitti06 = lengths[(lengths["dataset"] == "kitti") & (lengths["seq"] == "06")].iloc[0]
+    assert kitti06["frames"] == 1101 and kitti06["path_length_m"] == pytest.approx(1232.9)
+    assert _reference_length("synthetic", "0 on kitti_06", lengths)[0] == "KITTI 06"  # the route file's track
+    assert _reference_length("synthetic", "0 grid", lengths) == ("KITTI 06", pytest.approx(1232.9))
+    assert _reference_length("kitti", "00", lengths) == ("KITTI 00", pytest.approx(3724.2))
+
+
+def test_lengths_match_the_shared_ground_truth(shared: Path) -> None:
+    """The packaged lengths were computed from the ground truth beside the checkout (tests may read it)."""
+    poses = np.loadtxt(shared / "data" / "trajectories" / "kitti" / "06.txt").reshape(-1, 3, 4)[:, :, 3]  # [F, 3]
+    assert np.linalg.norm(np.diff(poses, axis=0), axis=1).sum() == pytest.approx(1232.9, abs=0.05)
