@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -55,6 +56,9 @@ def wheel_venv(tmp_path_factory) -> Path:
     assert build.returncode == 0, build.stderr[-2000:]
     make_venv(root / "venv")
     wheel = next((root / "dist").glob("pocketbench-*.whl"))
+    with zipfile.ZipFile(wheel) as zf:  # the packages only: no benchmarks/, tests/ or reports/
+        top = {name.split("/", 1)[0] for name in zf.namelist()}
+    assert top - {"bench", "strategies", "hydra_plugins"} == {f"pocketbench-{wheel.name.split('-')[1]}.dist-info"}, top
     install = subprocess.run([str(root / "venv" / "bin" / "python"), "-m", "pip", "install", "-q", "--no-deps",
                               str(wheel)], capture_output=True, text=True, timeout=300)  # fmt: skip
     assert install.returncode == 0, install.stderr[-2000:]
