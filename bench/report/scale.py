@@ -71,7 +71,9 @@ def run_slopes(keyframes: pd.DataFrame, peak_col: str | None) -> dict[str, float
         return None
     d = kf["distance_m"].to_numpy(float)
     out = {"distance_m": float(d.max())}
-    for name, col in (("gaussians", "n_gaussians"), ("peak_mib", peak_col)):
+    parts = (("gaussians", "n_gaussians"), ("peak_mib", peak_col), ("state_mib", "mem_state_mib"),
+             ("keyframes_mib", "mem_keyframes_mib"))  # the last two: what pruning can bound, and what it cannot
+    for name, col in parts:
         if col is None or col not in kf.columns or kf[col].isna().any():
             out[f"{name}_per_100m"] = out[f"{name}_at_0m"] = float("nan")
             continue
@@ -152,9 +154,11 @@ def _growth_table(one: pd.DataFrame, found: list[Variant], keyframes: dict[str, 
         f"Growth: least-squares lines through every keyframe after the first (mean ± std over seeds); "
         f"'at {ref_name}' extends each line to that sequence's whole length ({ref_m:.0f} m), a straight-line "
         "extrapolation, beside the paper's peak (GB on its GPU).", "",
-        "| method | seeds | driven m | Gaussians / 100 m | peak MiB / 100 m | slope vs baseline | "
-        f"Gaussians at {ref_name} | peak MiB at {ref_name} | paper GB |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "Of the peak's slope, 'state' is the Gaussian state (what pruning acts on) and 'keyframes' the keyframe "
+        "store (every keyframe's colour, depth and pose, which no strategy prunes); keyframes.csv's memory parts.", "",
+        "| method | seeds | driven m | Gaussians / 100 m | peak MiB / 100 m | state MiB / 100 m | "
+        f"keyframes MiB / 100 m | slope vs baseline | Gaussians at {ref_name} | peak MiB at {ref_name} | paper GB |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     slopes: dict[Variant, list[dict[str, float]]] = {}
     for variant, vr in _variant_rows(one, found):
@@ -172,7 +176,7 @@ def _growth_table(one: pd.DataFrame, found: list[Variant], keyframes: dict[str, 
     seq = ref_name.split()[-1]
     for variant, got in slopes.items():
         if not got:
-            lines.append(f"| {variant.label} | 0 | - | - | - | - | - | - | - |")
+            lines.append(f"| {variant.label} | 0 |" + " - |" * 9)
             continue
         g = _mean_std([s["gaussians_per_100m"] for s in got])
         p = _mean_std([s["peak_mib_per_100m"] for s in got])
@@ -182,7 +186,9 @@ def _growth_table(one: pd.DataFrame, found: list[Variant], keyframes: dict[str, 
         paper = _paper_memory_gb(variant.strategy, seq) if ref_name.startswith("KITTI") else None
         lines.append(
             f"| {variant.label} | {len(got)} | {statistics.fmean(s['distance_m'] for s in got):.0f} | "
-            f"{_fmt(*g, 0)} | {_fmt(*p, 2)} | {'n/a' if not np.isfinite(ratio) else f'x{ratio:.2f}'} | "
+            f"{_fmt(*g, 0)} | {_fmt(*p, 2)} | {_fmt(*_mean_std([s['state_mib_per_100m'] for s in got]), 2)} | "
+            f"{_fmt(*_mean_std([s['keyframes_mib_per_100m'] for s in got]), 2)} | "
+            f"{'n/a' if not np.isfinite(ratio) else f'x{ratio:.2f}'} | "
             f"{_fmt(*at_g, 0)} | {_fmt(*at_p, 1)} | {'-' if paper is None else f'{paper:g}'} |"
         )
     return lines + [""]
