@@ -9,7 +9,8 @@ the same map, to show what both residuals read on a real loss. Frames where eith
 (``slam.lost_check=color``: residual above ``slam.lost_residual``; ``depth``: depth residual above its
 threshold; for ``lost_patience`` frames) are marked.
 
-    python benchmarks/lost_detector.py ... --kick-every=5 --out=PATH.csv   # CSV rewritten every frame
+    python benchmarks/lost_detector.py ... --kick-every=5 --out=PATH.csv [--plot=PATH.png]  # CSV rewritten per frame
+    python benchmarks/lost_detector.py --out=PATH.csv --plot=PATH.png   # the figure again from the CSV alone
 
     python benchmarks/lost_detector.py slam=splatam dataset.n_frames=200 dataset.width=160 dataset.height=96
 """
@@ -48,7 +49,7 @@ def main(overrides: list[str], out_csv: Path | None = None, kick_every: int = 25
         system = System(slam, seq.K, seq.height, seq.width, load_strategy(name, cfg.strategy.params if cfg.strategy
                                                                             else None), cfg.prune, torch.device("cpu"))
         gt0 = None
-        rows, bad, bad_depth = [], 0, 0
+        rows, bad, bad_depth, bad_both = [], 0, 0, 0
         for i in range(len(seq)):
             frame = seq[i]
             kicked = None
@@ -62,11 +63,13 @@ def main(overrides: list[str], out_csv: Path | None = None, kick_every: int = 25
             err = float(np.linalg.norm(est_c2w[:3, 3] - (np.linalg.inv(gt0) @ gt)[:3, 3]))
             res, sil, dres = (system.track_log[-1][1:] if i else (0.0, 1.0, 0.0))
             bad = bad + 1 if res > threshold else 0
-            bad_depth = system._bad_frames
+            bad_depth = bad_depth + 1 if dres > depth_threshold else 0
+            bad_both = bad_both + 1 if res > threshold or dres > depth_threshold else 0
             rows.append({"frame": i, "gt_err_m": round(err, 4), "residual": round(res, 4),
                          "depth_residual_m": round(dres, 4), "depth_threshold_m": round(depth_threshold, 4),
                          "sil_frac": round(sil, 4), "would_fire": int(bad >= patience),
-                         "would_fire_depth": int(bad_depth >= patience), "n_gaussians": len(system.map),
+                         "would_fire_depth": int(bad_depth >= patience), "would_fire_both": int(bad_both >= patience),
+                         "n_gaussians": len(system.map),
                          "kicked_residual": None if kicked is None else round(kicked[0], 4),
                          "kicked_depth_residual_m": None if kicked is None else round(kicked[2], 4),
                          "kicked_moved_m": None if kicked is None else round(kicked[1], 4)})
@@ -101,8 +104,60 @@ def kick_residual(system: System, frame) -> tuple[float, float, float]:
     return residual, moved, depth_residual
 
 
+def plot(csv_path: Path, png_path: Path, title: str) -> None:
+    """The figure of reports/lost_detector from a CSV this script wrote: pose error and map size above, both
+    residuals with the depth check's threshold and the kicked frames' readings below."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with open(csv_path) as fh:
+        rows = list(csv.DictReader(fh))
+
+    def col(name: str) -> np.ndarray:
+        return np.array([float(r[name]) if r[name] not in ("", "None") else np.nan for r in rows])
+
+    f = col("frame")
+    kicked = ~np.isnan(col("kicked_depth_residual_m"))
+    fig, (ax0, ax1, ax2) = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
+    ax0.plot(f, col("gt_err_m"), "k", label="ground-truth pose error [m] (unaligned)")
+    ax0.set_ylabel("pose error [m]")
+    ax0b = ax0.twinx()
+    ax0b.plot(f, col("n_gaussians") / 1e3, color="tab:green", label="Gaussians [k]")
+    ax0b.set_ylabel("Gaussians [k]", color="tab:green")
+    ax0.legend(loc="upper left", fontsize=8)
+    ax1.plot(f, col("depth_residual_m"), color="tab:blue", label="depth L1 on confident pixels [m] (lost_check=depth)")
+    thr = col("depth_threshold_m")
+    ax1.plot(f, np.where(np.isfinite(thr), thr, np.nan), "--", color="tab:blue", lw=1, label="its threshold")
+    ax1.scatter(f[kicked], col("kicked_depth_residual_m")[kicked], marker="x", color="tab:red",
+                label="after a 1 m sideways kick")
+    ax1.set_ylabel("depth L1 [m]")
+    ax1.legend(loc="upper left", fontsize=8)
+    ax2.plot(f, col("residual"), color="tab:orange", label="colour L1 on confident pixels (lost_check=color)")
+    ax2.axhline(0.25, ls="--", color="tab:orange", lw=1, label="its threshold (lost_residual)")
+    ax2.scatter(f[kicked], col("kicked_residual")[kicked], marker="x", color="tab:red", label="after a 1 m kick")
+    ax2.set_ylabel("colour L1")
+    ax2.set_xlabel("frame")
+    ax2.legend(loc="upper left", fontsize=8)
+    for ax, name in ((ax0, "would_fire_both"), (ax1, "would_fire_depth"), (ax2, "would_fire")):
+        fired = f[col(name) > 0]
+        if len(fired):
+            ax.axvline(fired[0], color="grey", lw=1)
+    ax0.set_title(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(png_path, dpi=110)
+
+
 if __name__ == "__main__":
     args = sys.argv[1:]
     out = next((Path(a.split("=", 1)[1]) for a in args if a.startswith("--out=")), None)
     every = next((int(a.split("=", 1)[1]) for a in args if a.startswith("--kick-every=")), 25)
-    main([a for a in args if not a.startswith("--")], out, every)
+    png = next((Path(a.split("=", 1)[1]) for a in args if a.startswith("--plot=")), None)
+    overrides = [a for a in args if not a.startswith("--")]
+    if png and out and out.exists() and not overrides:  # only redraw: --out=CSV --plot=PNG
+        plot(out, png, out.stem)
+    else:
+        main(overrides, out, every)
+        if png and out:
+            plot(out, png, " ".join(overrides))

@@ -34,7 +34,7 @@ from bench.typed import as_config
 log = logging.getLogger(__name__)
 
 MAPPING_SCHEDULES = ("keyframes", "first")
-LOST_CHECKS = ("depth", "color", "off")  # slam.lost_check
+LOST_CHECKS = ("both", "depth", "color", "off")  # slam.lost_check
 # lost_check=depth judges a frame once this many frames make its baseline: the depth error a map reaches
 # depends on the sensor (exact synthetic depth, noisy stereo), so the first frames are the reference
 DEPTH_BASELINE_MIN = 3
@@ -105,13 +105,13 @@ class SlamConfig:
     # what declares tracking lost (besides a non-finite pose and a collapsed silhouette), for lost_patience
     # consecutive frames: "depth" = the depth L1 on confidently mapped pixels (those tracking uses, nearer than
     # depth_loss_max_m) above lost_depth_ratio x its median over the last lost_baseline_frames frames that were
-    # not flagged (from the 4th tracked frame on), and above lost_depth_floor_m; "color" = the mean colour L1 on those pixels above lost_residual;
-    # "off" = neither (both readings are still logged in track_log).
-    # Why depth and relative: a pose 1 m off leaves the colour L1 within the range of good frames (the colour of
-    # road and facades barely changes with a sideways shift), while depth L1 grows 3-10x; a ratio to the drive's
-    # own recent frames carries over between synthetic (exact) and stereo (noisy) depth. Figures:
-    # reports/lost_detector/README.md
-    lost_check: str = "depth"
+    # not flagged (from the 4th tracked frame on), and above lost_depth_floor_m; "color" = the mean colour L1
+    # on those pixels above lost_residual; "both" = either flags the frame; "off" = neither (both readings are
+    # still logged in track_log). Why both: a pose 1 m off leaves the colour L1 within the range of good frames
+    # (road and facades look alike a metre over) while the depth L1 grows several-fold, so the depth check
+    # catches the metre; but its baseline follows a map whose error grows (slam=splatam's stalls), and there
+    # the colour check is the one that catches a gross loss. Figures: reports/lost_detector/README.md
+    lost_check: str = "both"
     lost_depth_ratio: float = 3.0
     lost_depth_floor_m: float = 0.3
     lost_baseline_frames: int = 20
@@ -482,20 +482,22 @@ class System:
     def _check_lost(self, frame_index: int, color_l1: float, depth_l1: float) -> None:
         """Count consecutive bad frames under ``lost_check`` and raise ``TrackingLost`` at ``lost_patience``."""
         cfg = self.cfg
-        if cfg.lost_check == "depth":
-            threshold = self.depth_lost_threshold_m()
-            bad = depth_l1 > threshold
-            if not bad:  # flagged frames stay out of the baseline, so a loss cannot raise its own bar
-                self._depth_recent = (self._depth_recent + [depth_l1])[-cfg.lost_baseline_frames:]
-            what = f"depth residual {depth_l1:.3f} m above {threshold:.3f} m ({cfg.lost_depth_ratio} x recent median)"
-        elif cfg.lost_check == "color":
-            bad = color_l1 > cfg.lost_residual
-            what = f"colour residual {color_l1:.3f} above {cfg.lost_residual}"
-        else:
+        if cfg.lost_check == "off":
             return
-        self._bad_frames = self._bad_frames + 1 if bad else 0
+        why = []
+        if cfg.lost_check in ("depth", "both"):
+            threshold = self.depth_lost_threshold_m()
+            if depth_l1 > threshold:
+                why.append(f"depth residual {depth_l1:.3f} m above {threshold:.3f} m "
+                           f"({cfg.lost_depth_ratio} x recent median)")
+            else:  # flagged frames stay out of the baseline, so a loss cannot raise its own bar
+                self._depth_recent = (self._depth_recent + [depth_l1])[-cfg.lost_baseline_frames:]
+        if cfg.lost_check in ("color", "both") and color_l1 > cfg.lost_residual:
+            why.append(f"colour residual {color_l1:.3f} above {cfg.lost_residual}")
+        self._bad_frames = self._bad_frames + 1 if why else 0
         if self._bad_frames >= cfg.lost_patience:
-            raise TrackingLost(f"tracking lost at frame {frame_index}: {what} for {self._bad_frames} frames")
+            raise TrackingLost(
+                f"tracking lost at frame {frame_index}: {' and '.join(why)} for {self._bad_frames} frames")
 
     def _tracking_loss(self, out: RasterOutput, rgb: torch.Tensor, depth: torch.Tensor, mask: torch.Tensor):
         """L1 colour + lambda_d L1 depth, averaged over ``mask`` [H, W]."""
