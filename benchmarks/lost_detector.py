@@ -155,9 +155,10 @@ if __name__ == "__main__":
     every = next((int(a.split("=", 1)[1]) for a in args if a.startswith("--kick-every=")), 25)
     png = next((Path(a.split("=", 1)[1]) for a in args if a.startswith("--plot=")), None)
     overrides = [a for a in args if not a.startswith("--")]
-    if png and out and out.exists() and not overrides:  # only redraw: --out=CSV --plot=PNG
-        plot(out, png, out.stem)
+    title = next((a.split("=", 1)[1] for a in args if a.startswith("--title=")), None)
+    if png and out and out.exists() and not overrides:  # only redraw: --out=CSV --plot=PNG [--title=TEXT]
+        plot(out, png, title or out.stem)
     else:
         main(overrides, out, every)
         if png and out:
-            plot(out, png, " ".join(overrides))
+            plot(out, png, title or " ".join(overrides))
