@@ -50,7 +50,7 @@ def main(overrides: list[str], out_csv: Path | None = None, kick_every: int = 25
                                                                             else None), cfg.prune, torch.device("cpu"))
         gt0 = None
         rows, bad, bad_depth, bad_both = [], 0, 0, 0
-        for i in range(len(seq)):
+        for i in range(min(len(seq), cfg.max_frames) if cfg.max_frames else len(seq)):
             frame = seq[i]
             kicked = None
             depth_threshold = system.depth_lost_threshold_m()  # what this frame is judged against
