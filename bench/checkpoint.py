@@ -37,7 +37,7 @@ from bench.typed import check_rules, setting
 log = logging.getLogger(__name__)
 
 FILES = ("checkpoint.pt", "checkpoint.prev.pt")  # newest first
-FORMAT = 1  # bumped when the layout changes: an older checkpoint is then refused, not misread
+FORMAT = 2  # bumped when the layout changes: an older checkpoint is then refused, not misread
 MIB = 1 << 20
 
 

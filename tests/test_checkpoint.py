@@ -157,7 +157,7 @@ def test_find_accepts_a_matching_checkpoint(tmp_path: Path) -> None:
 @pytest.mark.parametrize("damage, reason", [
     (lambda p: p.write_bytes(p.read_bytes()[:100]), "checkpoint.pt is unreadable (truncated or corrupt"),
     (lambda p: p.write_bytes(b"not a checkpoint"), "checkpoint.pt is unreadable (truncated or corrupt"),
-    (lambda p: torch.save({"format": 0}, p), "checkpoint.pt has format 0, expected 1"),
+    (lambda p: torch.save({"format": 0}, p), "checkpoint.pt has format 0, expected 2"),
     (lambda p: torch.save({"format": 1, "obj": object()}, p), "checkpoint.pt is unreadable"),  # not plain values
 ])  # fmt: skip
 def test_find_refuses_a_damaged_checkpoint(damage, reason: str, tmp_path: Path) -> None:

@@ -34,6 +34,10 @@ from bench.typed import as_config
 log = logging.getLogger(__name__)
 
 MAPPING_SCHEDULES = ("keyframes", "first")
+LOST_CHECKS = ("both", "depth", "color", "off")  # slam.lost_check
+# lost_check=depth judges a frame once this many frames make its baseline: the depth error a map reaches
+# depends on the sensor (exact synthetic depth, noisy stereo), so the first frames are the reference
+DEPTH_BASELINE_MIN = 3
 
 
 @dataclass
@@ -98,8 +102,21 @@ class SlamConfig:
     name: str = "default"  # the preset's name (conf/slam/NAME.yaml), recorded as slam_preset in metrics.json
     max_depth_m: float = 150.0  # observed depth beyond this is ignored
     lrs: LearningRates = field(default_factory=LearningRates)  # slam.lrs.NAME=VALUE
-    lost_residual: float = 0.25  # mean colour L1 on tracked pixels that counts as failure ...
-    lost_patience: int = 3  # ... for this many consecutive frames
+    # what declares tracking lost (besides a non-finite pose and a collapsed silhouette), for lost_patience
+    # consecutive frames: "depth" = the depth L1 on confidently mapped pixels (those tracking uses, nearer than
+    # depth_loss_max_m) above lost_depth_ratio x its median over the last lost_baseline_frames frames that were
+    # not flagged (from the 4th tracked frame on), and above lost_depth_floor_m; "color" = the mean colour L1
+    # on those pixels above lost_residual; "both" = either flags the frame; "off" = neither (both readings are
+    # still logged in track_log). Why both: a pose 1 m off leaves the colour L1 within the range of good frames
+    # (road and facades look alike a metre over) while the depth L1 grows several-fold, so the depth check
+    # catches the metre; but its baseline follows a map whose error grows (slam=splatam's stalls), and there
+    # the colour check is the one that catches a gross loss. Figures: reports/lost_detector/README.md
+    lost_check: str = "both"
+    lost_depth_ratio: float = 3.0
+    lost_depth_floor_m: float = 0.3
+    lost_baseline_frames: int = 20
+    lost_residual: float = 0.25  # lost_check=color: mean colour L1 on tracked pixels that counts as failure ...
+    lost_patience: int = 3  # ... for this many consecutive frames (either check)
     lost_min_silhouette_frac: float = 0.05  # fewer confidently mapped pixels than this = collapsed
     seed: int = 0
 
@@ -126,6 +143,15 @@ class SlamConfig:
             raise ConfigError(
                 f"slam.raster_backend: expected one of {', '.join(BACKENDS)}, found '{self.raster_backend}'"
             )
+        if self.lost_check not in LOST_CHECKS:
+            raise ConfigError(f"slam.lost_check: expected one of {', '.join(LOST_CHECKS)}, found '{self.lost_check}'")
+        if not self.lost_depth_ratio > 1.0:
+            raise ConfigError(f"slam.lost_depth_ratio: expected > 1, found {self.lost_depth_ratio}")
+        if not self.lost_depth_floor_m >= 0.0:
+            raise ConfigError(f"slam.lost_depth_floor_m: expected >= 0, found {self.lost_depth_floor_m}")
+        if self.lost_baseline_frames < 1 or self.lost_patience < 1:
+            raise ConfigError(f"slam.lost_baseline_frames and slam.lost_patience: expected >= 1, found "
+                              f"{self.lost_baseline_frames} and {self.lost_patience}")
         if self.tracking_init not in ("velocity", "flow_pnp"):
             raise ConfigError(f"slam.tracking_init: expected 'velocity' or 'flow_pnp', found '{self.tracking_init}'")
         # a mapping of overrides (SlamConfig(lrs={"colors": 0.5}) from Python) becomes the typed group
@@ -192,6 +218,7 @@ class System:
         self.poses: list[torch.Tensor] = []  # w2c per processed frame
         self.frames_since_kf = 0
         self._bad_frames = 0
+        self._depth_recent: list[float] = []  # lost_check=depth: depth L1 of the last unflagged frames (the baseline)
         # one generator per consumer, all from the run seed, so that a change in one (say, more
         # keyframes) does not shift the draws of another
         self._rng = random.Random(cfg.seed)  # keyframe sampling in mapping and refinement
@@ -211,8 +238,8 @@ class System:
         self._holes: list[np.ndarray] = []
         self._reseeded = 0  # seeds of the last densification that landed in those pixels
         # per tracked frame, what the loss detector reads: (frame, colour L1 on confident pixels,
-        # fraction of confident pixels); a few floats per frame
-        self.track_log: list[tuple[int, float, float]] = []
+        # fraction of confident pixels, depth L1 in m on confident pixels with depth); a few floats per frame
+        self.track_log: list[tuple[int, float, float, float]] = []
 
     # ------------------------------------------------------------------ rendering
     def render(
@@ -305,6 +332,7 @@ class System:
             "poses": _stack(self.poses),  # [F, 4, 4]
             "frames_since_kf": self.frames_since_kf,
             "bad_frames": self._bad_frames,
+            "depth_recent": torch.tensor(self._depth_recent, dtype=torch.float64),  # [<= lost_baseline_frames]
             "init_source": ",".join(self.init_source),
             "prev_obs": prev,
             "rng": _py_rng_state(self._rng),
@@ -312,7 +340,7 @@ class System:
             "ransac_rng": _np_gen_state(self._ransac_rng),
             # prune diagnostics: the opened pixels' world points awaiting the next densification [M, 3]
             "holes": torch.from_numpy(np.concatenate(self._holes) if self._holes else np.zeros((0, 3))),
-            "track_log": torch.tensor(self.track_log, dtype=torch.float64).reshape(-1, 3),  # [F, 3]
+            "track_log": torch.tensor(self.track_log, dtype=torch.float64).reshape(-1, 4),  # [F, 4]
         }
 
     def load_state_dict(self, sd: dict[str, Any], frame_at: Callable[[int], Frame]) -> None:
@@ -339,6 +367,7 @@ class System:
             self.keyframes.append(_Keyframe(index, _torch_owned(rgb), depth, w2c.to(self.device)))
         self.poses = [p.to(self.device) for p in sd["poses"]]
         self.frames_since_kf, self._bad_frames = sd["frames_since_kf"], sd["bad_frames"]
+        self._depth_recent = sd["depth_recent"].tolist()
         self.init_source = sd["init_source"].split(",") if sd["init_source"] else []
         prev = sd["prev_obs"]
         self._prev_obs = None if prev is None else (prev[0].numpy(), prev[1].numpy())
@@ -347,7 +376,7 @@ class System:
         self._ransac_rng.bit_generator.state = sd["ransac_rng"]
         holes = sd["holes"].numpy()
         self._holes = [holes] if len(holes) else []
-        self.track_log = [(int(f), c, s) for f, c, s in sd["track_log"].tolist()]
+        self.track_log = [(int(f), c, s, d) for f, c, s, d in sd["track_log"].tolist()]
 
     def _is_keyframe(self, w2c: torch.Tensor) -> bool:
         if not self.keyframes:
@@ -410,7 +439,7 @@ class System:
                 out.means2d.retain_grad()
             if mask is None or cfg.tracking_mask == "current":
                 mask = out.alpha.detach() > cfg.silhouette_min
-            loss, color_l1 = self._tracking_loss(out, rgb, depth, mask)
+            loss, color_l1, depth_l1 = self._tracking_loss(out, rgb, depth, mask)
             if not loss.requires_grad:  # no Gaussian projects into the image: nothing to track against
                 raise TrackingLost(f"tracking lost at frame {frame_index}: no Gaussian of the map is in view")
             opt.zero_grad(set_to_none=True)
@@ -435,25 +464,47 @@ class System:
         if not torch.isfinite(w2c).all():
             raise TrackingLost(f"tracking lost at frame {frame_index}: pose is not finite")
         sil_frac = float((out.alpha.detach() > cfg.silhouette_min).float().mean())
-        self.track_log.append((frame_index, float(color_l1), sil_frac))
+        self.track_log.append((frame_index, float(color_l1), sil_frac, float(depth_l1)))
         if sil_frac < cfg.lost_min_silhouette_frac:
             raise TrackingLost(
                 f"tracking lost at frame {frame_index}: silhouette collapsed to {sil_frac:.3f} "
                 f"of pixels (expected >= {cfg.lost_min_silhouette_frac})"
             )
-        self._bad_frames = self._bad_frames + 1 if float(color_l1) > cfg.lost_residual else 0
+        self._check_lost(frame_index, float(color_l1), float(depth_l1))
+        return w2c, loss_val
+
+    def depth_lost_threshold_m(self) -> float:
+        """The depth L1 (m) above which the next frame counts as bad under ``lost_check=depth``."""
+        if len(self._depth_recent) < DEPTH_BASELINE_MIN:  # no reference yet: the first frames set it
+            return float("inf")
+        return max(self.cfg.lost_depth_floor_m, self.cfg.lost_depth_ratio * float(np.median(self._depth_recent)))
+
+    def _check_lost(self, frame_index: int, color_l1: float, depth_l1: float) -> None:
+        """Count consecutive bad frames under ``lost_check`` and raise ``TrackingLost`` at ``lost_patience``."""
+        cfg = self.cfg
+        if cfg.lost_check == "off":
+            return
+        why = []
+        if cfg.lost_check in ("depth", "both"):
+            threshold = self.depth_lost_threshold_m()
+            if depth_l1 > threshold:
+                why.append(f"depth residual {depth_l1:.3f} m above {threshold:.3f} m "
+                           f"({cfg.lost_depth_ratio} x recent median)")
+            else:  # flagged frames stay out of the baseline, so a loss cannot raise its own bar
+                self._depth_recent = (self._depth_recent + [depth_l1])[-cfg.lost_baseline_frames:]
+        if cfg.lost_check in ("color", "both") and color_l1 > cfg.lost_residual:
+            why.append(f"colour residual {color_l1:.3f} above {cfg.lost_residual}")
+        self._bad_frames = self._bad_frames + 1 if why else 0
         if self._bad_frames >= cfg.lost_patience:
             raise TrackingLost(
-                f"tracking lost at frame {frame_index}: colour residual {float(color_l1):.3f} above "
-                f"{cfg.lost_residual} for {self._bad_frames} frames"
-            )
-        return w2c, loss_val
+                f"tracking lost at frame {frame_index}: {' and '.join(why)} for {self._bad_frames} frames")
 
     def _tracking_loss(self, out: RasterOutput, rgb: torch.Tensor, depth: torch.Tensor, mask: torch.Tensor):
         """L1 colour + lambda_d L1 depth, averaged over ``mask`` [H, W]."""
         n = mask.sum().clamp_min(1)
         color_l1 = ((out.color - rgb).abs().sum(-1) * mask).sum() / (3 * n)
-        return color_l1 + self.cfg.lambda_depth_track * self._depth_l1(out, depth, mask), color_l1.detach()
+        depth_l1 = self._depth_l1(out, depth, mask)
+        return color_l1 + self.cfg.lambda_depth_track * depth_l1, color_l1.detach(), depth_l1.detach()
 
     def _depth_l1(self, out: RasterOutput, depth: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
         """Mean L1 depth error over valid pixels nearer than ``depth_loss_max_m`` (within ``mask``)."""

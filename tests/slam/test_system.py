@@ -1,9 +1,11 @@
+import io
+
 import pytest
 import torch
 
 from bench.datasets.base import Frame
 from bench.datasets.synthetic import open_sequence
-from bench.errors import TrackingLost
+from bench.errors import ConfigError, TrackingLost
 from bench.slam.system import SlamConfig, System
 from bench.strategy import Strategy
 
@@ -19,7 +21,7 @@ def _system(seq, **kw) -> System:
 
 
 def test_a_frame_the_map_cannot_explain_is_lost_not_a_crash(seq):
-    s = _system(seq, tracking_init="velocity", lost_patience=1)
+    s = _system(seq, tracking_init="velocity", lost_patience=1, lost_check="color")
     s.process(seq[0])
     s.process(seq[1])  # the true next frame is tracked
     inverted = seq[2]
@@ -72,3 +74,65 @@ def test_new_gaussians_survive_a_strategy_that_drops_everything(seq):
     assert first.n_added > 0 and len(s.map) == first.n_added  # all new: nothing pruned
     second = s.process(seq[1])
     assert second.is_keyframe and len(s.map) == second.n_added > 0  # only this keyframe's additions remain
+
+
+@pytest.fixture(scope="module")
+def mapped_drive():
+    """A system that tracked and mapped frames 0-6 of the straight street at 128x80 (keyframes 0, 3, 6), and the
+    sequence; frame 11 is five frames past the last keyframe, so its far street end is not mapped yet."""
+    seq = open_sequence({"width": 128, "height": 80, "n_frames": 12, "supersample": 1})
+    cfg = SlamConfig(tracking_iters=20, tracking_iters_first=100, mapping_iters=60, lost_patience=1,
+                     tracking_init="velocity")
+    s = System(cfg, seq.K, seq.height, seq.width, Strategy(), 0.4, torch.device("cpu"))
+    for i in range(7):
+        s.process(seq[i])
+    return s, seq
+
+
+def _track_from(s: System, seq, j: int, kick_m: float) -> float:
+    """Track frame ``j`` from its true pose moved sideways by ``kick_m``; the depth check's state is restored.
+    Returns the colour L1 the old check (lost_check=color) would have read."""
+    gt = (torch.from_numpy(seq.poses[0]).inverse() @ torch.from_numpy(seq.poses[j])).inverse().float()  # w2c
+    kick = torch.eye(4)
+    kick[0, 3] = kick_m
+    rgb, depth = s.observe(seq[j])
+    recent, bad = list(s._depth_recent), s._bad_frames
+    try:
+        s._track(j, rgb, depth, init=kick @ gt)
+    finally:
+        s._depth_recent, s._bad_frames = recent, bad
+    return s.track_log[-1][1]
+
+
+def test_depth_check_is_quiet_on_new_street_and_fires_on_a_metre(mapped_drive):
+    s, seq = mapped_drive
+    gt = (torch.from_numpy(seq.poses[0]).inverse() @ torch.from_numpy(seq.poses[11])).inverse().float()
+    _, depth = s.observe(seq[11])
+    unmapped = float(((s.render(gt).alpha < 0.5) & (depth > 0)).float().mean())
+    assert unmapped > 0.02, unmapped  # the frame does show street the map has not seen
+    _track_from(s, seq, 11, 0.0)  # at the true pose: no TrackingLost, though patience is 1
+    for kick_m in (1.0, -1.0):
+        with pytest.raises(TrackingLost, match="depth residual"):
+            _track_from(s, seq, 11, kick_m)
+        # why not the colour check: a metre sideways leaves the colour L1 far below its threshold
+        assert s.track_log[-1][1] < s.cfg.lost_residual / 2, s.track_log[-1]
+
+
+def test_lost_check_is_a_checked_option():
+    with pytest.raises(ConfigError, match="slam.lost_check"):
+        SlamConfig(lost_check="colour")
+    with pytest.raises(ConfigError, match="slam.lost_depth_ratio"):
+        SlamConfig(lost_depth_ratio=1.0)
+
+
+def test_checkpoint_state_carries_the_lost_detector(mapped_drive):
+    """A resumed run judges its next frame against the same baseline and bad-frame count as the run that stopped."""
+    s, seq = mapped_drive
+    buf = io.BytesIO()
+    torch.save(s.state_dict(), buf)
+    buf.seek(0)
+    back = System(s.cfg, seq.K, seq.height, seq.width, Strategy(), 0.4, torch.device("cpu"))
+    back.load_state_dict(torch.load(buf, weights_only=True), seq.__getitem__)
+    assert len(s._depth_recent) == 6
+    assert back._depth_recent == s._depth_recent and back._bad_frames == s._bad_frames
+    assert back.track_log == s.track_log and back.depth_lost_threshold_m() == s.depth_lost_threshold_m()
