@@ -307,6 +307,7 @@ class Drive:
     windows: list[dict[str, Any]] = field(default_factory=list)  # the keyframes.csv rows
     loop_s: float = 0.0  # SLAM wall time after the warm-up frames
     warmup_s: float = 0.0  # the warm-up frames' time, left out of loop_s and fps
+    tail: dict[str, Any] = field(default_factory=dict)  # peaks and map size of the frames after the last keyframe
 
 
 def restore(parts: Parts, start: dict[str, Any]) -> None:
@@ -454,6 +455,8 @@ def drive_frames(cfg: RunConfig, parts: Parts, out: Path, record: dict[str, Any]
             drive.status, drive.error = "failed", f"{exc} (after {metrics['num_frames']} frames)"
         finally:
             bar.close()
+            # the frames after the last keyframe form a window no keyframes.csv row closes: their peaks count too
+            drive.tail = {**parts.probe.end_window(), "n_gaussians": len(system.map)}
             parts.probe.close()
     return drive
 
@@ -582,7 +585,7 @@ def finish(cfg: RunConfig, parts: Parts, drive: Drive, out: Path, device: torch.
     # slam_wall_s + warmup_s (less the frame handling outside the phases); refinement is refine_s
     metrics["phase_s"] = {k: round(v, 3) for k, v in timer.totals().items() if k != "refine"}
     metrics["memory_method"] = {"cpu_rss": parts.probe.rss_method, "torch_live": cfg.memory.torch_live}
-    metrics.update(schema.memory_summary(drive.windows, device.type))
+    metrics.update(schema.memory_summary([*drive.windows, drive.tail], device.type))
     metrics["gaussians_final"] = len(system.map)
     # churn: did pruning shrink the map, or only feed re-seeding?
     metrics["gaussians_added_total"] = sum(w["n_added"] for w in drive.windows)

@@ -145,7 +145,7 @@ METRIC_FIELDS: tuple[Field, ...] = (
     Field("keep_ratio", "", "as `run.keep_ratio` (null when nothing is pruned or the target is absolute)"),
     Field("num_keyframes", "", "keyframe windows (rows of keyframes.csv)"),
     Field("gaussians_final", "", "Gaussians in the final map"),
-    Field("gaussians_peak", "", "largest `n_gaussians` over the windows"),
+    Field("gaussians_peak", "", "largest `n_gaussians` over the windows and at the end (after the last keyframe)"),
     Field("gaussians_added_total", "", "sum of `n_added`: with the totals below, whether pruning shrank the map"),
     Field("gaussians_pruned_total", "", "sum of `n_pruned`"),
     Field("prune_candidates_total", "", "sum of `n_candidates`"),

@@ -29,3 +29,38 @@ def test_metrics_json_times_and_keys_agree(tmp_path):
     assert (m["ate_first_frame"], m["ate_last_frame"]) == (0, m["num_frames"] - 1)
     assert "ate_frames" not in m
     assert m["eval_s"] > 0 and m["wall_s"] >= loop + m["refine_s"] + m["eval_s"]
+
+
+
+@pytest.mark.slow
+def test_peaks_count_the_frames_after_the_last_keyframe(tmp_path, monkeypatch):
+    """The frames after the last keyframe form a window no keyframes.csv row closes; the run's peaks
+    must still see it: a 64 MiB buffer held during the last (non-key) frame is in peak_mem_mib."""
+    import csv
+
+    import torch
+
+    from bench.slam.system import System
+
+    process, big_mib = System.process, 64
+
+    def process_then_hold(self, frame):
+        res = process(self, frame)
+        if frame.index == 5 and not res.is_keyframe:
+            held = torch.ones(big_mib * 2**20 // 4)  # [n] float32, live for a moment, then freed
+            del held
+        return res
+
+    monkeypatch.setattr(System, "process", process_then_hold)
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[*TINY, "dataset.n_frames=6", "slam.kf_every=4",
+                                                       "slam.refine_iters=0"])  # fmt: skip
+    result = run(cfg, out_dir=tmp_path)
+    assert result.status == "ok", result.error
+    m = json.loads((tmp_path / "metrics.json").read_text())["metrics"]
+    with open(tmp_path / "keyframes.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert int(rows[-1]["frame"]) < 5  # frame 5 is after the last keyframe
+    assert max(float(r["torch_live_peak_mib"]) for r in rows) < big_mib
+    assert m["peak_mem_mib"] >= big_mib
+    assert m["gaussians_peak"] >= m["gaussians_final"]
