@@ -99,10 +99,11 @@ _UHALF_PIX = _U(NPIX // 2)
 S_X, S_Y, S_T, S_A0, S_A1, S_A2, S_A3, S_LAST, S_DONE, S_W = (_U(j * NPIX) for j in range(10))
 S_SIZE = 10 * NPIX
 # backward state: pixel coordinates, transmittance in front of the visited Gaussian, last
-# contributor, dL/d acc (4), dL/dT_final * T_final, and the features accumulated behind the visited
-# Gaussian (4)
-B_X, B_Y, B_TC, B_LK, B_Q0, B_Q1, B_Q2, B_Q3, B_QT, B_B0, B_B1, B_B2, B_B3 = (_U(j * NPIX) for j in range(13))
-B_SIZE = 13 * NPIX
+# contributor, dL/d acc (4), dL/dT_final * T_final, the features accumulated behind the visited
+# Gaussian (4), and the visited Gaussian's w and u (see ``_backward_span``)
+B_X, B_Y, B_TC, B_LK, B_Q0, B_Q1, B_Q2, B_Q3, B_QT, B_B0, B_B1, B_B2, B_B3, B_W, B_U = (
+    _U(j * NPIX) for j in range(15))
+B_SIZE = 15 * NPIX
 # the forward counts a tile's saturated pixels (to stop early) once per this many list entries; an
 # entry after saturation changes nothing, so the period changes no result
 SATURATION_CHECK = 8
@@ -181,14 +182,14 @@ def _box(mx, my, ex, ey, x0, x1, y0, y1):  # pragma: no cover - compiled
 
 
 @njit(inline="always", **_KERNEL)
-def _row_meets(y, mx, my, a, b, c, q2, cx0, cx1):  # pragma: no cover - compiled
+def _row_meets(y, mx, my, a, inv_a, b, c, q2, cx0, cx1):  # pragma: no cover - compiled
     """Whether row y of the ellipse a dx^2 + 2 b dx dy + c dy^2 <= q2 reaches columns [cx0, cx1) (float64)."""
     dy = float(y) - my
     d = b * b * dy * dy - a * (c * dy * dy - q2)
     if d < 0.0:
         return False
     sq = np.sqrt(d)
-    return mx + (-b * dy + sq) / a >= cx0 - 0.01 and mx + (-b * dy - sq) / a <= cx1 - 0.99
+    return mx + (-b * dy + sq) * inv_a >= cx0 - 0.01 and mx + (-b * dy - sq) * inv_a <= cx1 - 0.99
 
 
 @njit(inline="always", **_KERNEL)
@@ -200,11 +201,12 @@ def _rows(mx, my, a, b, c, p_min, cx0, cx1, by0, by1):  # pragma: no cover - com
     threshold is widened, so float32 rounding of the exact test cannot matter)."""
     q2 = -2.0 * float(p_min) * 1.001 + 0.01
     mxd, myd, ad, bd, cd = float(mx), float(my), float(a), float(b), float(c)
+    inv_a = 1.0 / ad
     lo = by0
-    while lo < by1 and not _row_meets(lo, mxd, myd, ad, bd, cd, q2, cx0, cx1):
+    while lo < by1 and not _row_meets(lo, mxd, myd, ad, inv_a, bd, cd, q2, cx0, cx1):
         lo += 1
     hi = by1
-    while hi > lo and not _row_meets(hi - 1, mxd, myd, ad, bd, cd, q2, cx0, cx1):
+    while hi > lo and not _row_meets(hi - 1, mxd, myd, ad, inv_a, bd, cd, q2, cx0, cx1):
         hi -= 1
     return lo, hi
 
@@ -354,10 +356,11 @@ def _forward(gid, tile_start, gp, width, height, tiles_x, stats, order, bounds,
 def _backward_span(st, lo, hi, fx0, fx1, mx, my, a, b, c, o, p_min, f0, f1, f2, f3, kl):  # pragma: no cover
     """One Gaussian over state pixels [lo, hi), back to front: its 10 gradient sums over the span.
 
-    The mean and conic gradients are linear in (a, b, c) and o, so the loop sums only the moments
-    u dx, u dy, u dx^2, u dy^2, u dx dy of u = dL/dalpha * exp(power), and fewer values stay live."""
-    s1 = s2 = sxx = syy = sxy = go = _F(0.0)
-    gf0 = gf1 = gf2 = gf3 = _F(0.0)
+    Two loops: the first updates each pixel's state and keeps its blending weight w and
+    u = dL/dalpha * exp(power), the second sums them. In one loop the ten running sums and the
+    per-Gaussian constants need more than AVX2's 16 vector registers, and the spills cost more
+    than the second pass. The mean and conic gradients are linear in (a, b, c) and o, so only the
+    moments u dx, u dy, u dx^2, u dy^2, u dx dy are summed."""
     for i in range(lo, hi):
         xv = st[B_X + i]
         dx = xv - mx
@@ -373,10 +376,6 @@ def _backward_span(st, lo, hi, fx0, fx1, mx, my, a, b, c, o, p_min, f0, f1, f2, 
         t_before = tcur * inv_one_m
         w = alpha * t_before * okf
         q0, q1, q2, q3 = st[B_Q0 + i], st[B_Q1 + i], st[B_Q2 + i], st[B_Q3 + i]
-        gf0 += w * q0
-        gf1 += w * q1
-        gf2 += w * q2
-        gf3 += w * q3
         b0, b1, b2, b3 = st[B_B0 + i], st[B_B1 + i], st[B_B2 + i], st[B_B3 + i]
         # d acc / d alpha = f T_before - behind / (1 - alpha); d T_final / d alpha = -T_final / (1 - alpha)
         g_alpha = (t_before * (q0 * f0 + q1 * f1 + q2 * f2 + q3 * f3)
@@ -386,8 +385,20 @@ def _backward_span(st, lo, hi, fx0, fx1, mx, my, a, b, c, o, p_min, f0, f1, f2, 
         st[B_B2 + i] = b2 + w * f2
         st[B_B3 + i] = b3 + w * f3
         st[B_TC + i] = tcur * (inv_one_m * okf + (_F(1.0) - okf))
+        st[B_W + i] = w
         # the clamp at 0.99 passes no gradient
-        u = g_alpha * gauss * (_F(1.0) if ok & (raw < ALPHA_MAX) else _F(0.0))
+        st[B_U + i] = g_alpha * gauss * (_F(1.0) if ok & (raw < ALPHA_MAX) else _F(0.0))
+    s1 = s2 = sxx = syy = sxy = go = _F(0.0)
+    gf0 = gf1 = gf2 = gf3 = _F(0.0)
+    for i in range(lo, hi):
+        dx = st[B_X + i] - mx
+        dy = st[B_Y + i] - my
+        w = st[B_W + i]
+        u = st[B_U + i]
+        gf0 += w * st[B_Q0 + i]
+        gf1 += w * st[B_Q1 + i]
+        gf2 += w * st[B_Q2 + i]
+        gf3 += w * st[B_Q3 + i]
         go += u
         s1 += u * dx
         s2 += u * dy
