@@ -12,6 +12,10 @@ Design choices, and why:
   only the pixels of its exact 1/255 bounding box (the ellipse where ``o exp(-d^T S^-1 d / 2)``
   reaches 1/255), so the cost is the sum of box areas, not pixels x list length. Per-pixel
   compositing order is still front to back because the list is depth-sorted.
+- Vectorised pixels: a Gaussian updates its box 8 pixels (one AVX2 register) at a time, with
+  masks instead of branches, so a pixel outside the ellipse costs a lane rather than a
+  mispredicted branch. How the loops are written so that LLVM vectorises them is said where the
+  tile state is laid out (``S_X``); check it in the assembly (ymm registers) after a change.
 - Determinism: tiles run in parallel but each writes only its own pixels and its own slice of the
   pair list. Per-Gaussian sums (gradients, pruning statistics) are first written per pair, then
   reduced over pairs in list order by one sequential loop. The result does not depend on the
@@ -20,8 +24,8 @@ Design choices, and why:
   into contiguous halves of the image, so that a thread given the sky does not wait for the one
   given the road. Which thread runs a tile changes nothing in its result.
 - Every buffer the kernels fill is a torch tensor (they receive numpy views), so the live-tensor
-  memory probe of ``bench/measure.py`` counts it. Only a 256-entry "done" flag per tile and the
-  kernels' scalars live outside torch.
+  memory probe of ``bench/measure.py`` counts it. Only each thread's tile state (10-15 floats per
+  pixel of one tile, under 16 KiB) and the kernels' scalars live outside torch.
 - float32 throughout, with float32 literals: numba promotes mixed int/float32 arithmetic to float64.
 """
 
@@ -82,13 +86,19 @@ def _bin_pairs(order, rect, n_tiles, tiles_x):  # pragma: no cover - compiled
     return counts, gid
 
 
-# The compositing kernels keep a tile's per-pixel state in one flat float32 buffer allocated inside
-# the kernel, each quantity at a fixed offset (structure of arrays), and index it with unsigned
-# integers. That is what lets LLVM vectorise the pixel loops (8 float32 lanes of AVX2): one base
-# pointer with constant distances between the quantities leaves it no aliasing to check at run time,
-# and unsigned indices carry no negative-index wraparound, which would turn every load into a gather.
+# The compositing kernels are written so that LLVM vectorises their pixel loops (8 float32 lanes of
+# AVX2); breaking one of these rules gives scalar code and still passes every value test
+# (tests/slam/test_raster_fused.py reads the assembly):
+# - a tile's per-pixel state is one flat float32 buffer allocated inside the kernel, each quantity
+#   at a fixed offset (structure of arrays): one base pointer with constant distances leaves LLVM
+#   no aliasing to check at run time (separate arrays, or a per-lane accumulator indexed apart from
+#   the pixel, made it check, and fall back to scalar code);
+# - indices are unsigned: numba wraps negative signed indices, which makes every load a select;
+# - error_model="numpy": with Python's model a float division carries a zero-division branch;
+# - no branch in the loop body: a lane that takes no part adds zero and keeps its state (selects);
+# - a span is whole rows of 8 px, so the vector loop has no scalar remainder.
 # A tile's pixels are stored as two 8-px column halves, each row-major, so the rows of a Gaussian's
-# box inside one half are one contiguous span whose length is a multiple of 8: one vector per row.
+# box inside one half are one contiguous span whose length is a multiple of 8.
 _U = np.uint64
 HALF = TILE // 2
 NPIX = TILE * TILE
