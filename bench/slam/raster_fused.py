@@ -282,6 +282,19 @@ def _forward_span(st, lo, hi, fx0, fx1, mx, my, a, b, c, o, p_min, f0, f1, f2, f
         st[S_W + i] = w
 
 
+@njit(inline="always", **_KERNEL)
+def _coverage_span(st, lo, hi, fx0, fx1, mx, my, a, b, c, o):  # pragma: no cover - compiled
+    """Sum of o exp(power) over state pixels [lo, hi) in columns [fx0, fx1): the pruning statistic's share."""
+    cov = _F(0.0)
+    for i in range(lo, hi):
+        xv = st[S_X + i]
+        dx = xv - mx
+        dy = st[S_Y + i] - my
+        power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
+        cov += o * _exp(power) if (xv >= fx0) & (xv < fx1) else _F(0.0)
+    return cov
+
+
 @njit(parallel=True, **_KERNEL)
 def _forward(gid, tile_start, gp, width, height, tiles_x, stats, order, bounds,
              acc, t_final, last, pair_cov, pair_hits, pair_maxw):  # pragma: no cover - compiled
@@ -342,12 +355,10 @@ def _forward(gid, tile_start, gp, width, height, tiles_x, stats, order, bounds,
                         r2 = _F(-2.0) * COVERAGE_POWER_MIN
                         cx0, cx1, cy0, cy1 = _box(mx, my, np.sqrt(r2 * c / det) + _F(1.0),
                                                   np.sqrt(r2 * a / det) + _F(1.0), x0, x1, y0, y1)
-                        for y in range(cy0, cy1):
-                            dy = _F(y) - my
-                            for x in range(cx0, cx1):
-                                dx = _F(x) - mx
-                                power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
-                                cov += o * np.exp(power)
+                        if cy1 > cy0:
+                            for h in range((cx0 - x0) // HALF, (cx1 - x0 + HALF - 1) // HALF):
+                                lo, hi = _span(h, cy0, cy1, y0)
+                                cov += _coverage_span(st, lo, hi, _F(cx0), _F(cx1), mx, my, a, b, c, o)
                     pair_cov[k] = cov
             for y in range(y0, y1):
                 for x in range(x0, x1):
