@@ -192,14 +192,12 @@ def _box(mx, my, ex, ey, x0, x1, y0, y1):  # pragma: no cover - compiled
 
 
 @njit(inline="always", **_KERNEL)
-def _row_meets(y, mx, my, a, inv_a, b, c, q2, cx0, cx1):  # pragma: no cover - compiled
-    """Whether row y of the ellipse a dx^2 + 2 b dx dy + c dy^2 <= q2 reaches columns [cx0, cx1) (float64)."""
+def _row_meets(y, mx, my, a, b, c, slope, q2, dx0, dx1):  # pragma: no cover - compiled
+    """Whether row y of the ellipse a dx^2 + 2 b dx dy + c dy^2 <= q2 reaches dx in [dx0, dx1] (float64):
+    the quadratic is convex in dx, so its least value there is at its minimiser slope dy, clamped."""
     dy = float(y) - my
-    d = b * b * dy * dy - a * (c * dy * dy - q2)
-    if d < 0.0:
-        return False
-    sq = np.sqrt(d)
-    return mx + (-b * dy + sq) * inv_a >= cx0 - 0.01 and mx + (-b * dy - sq) * inv_a <= cx1 - 0.99
+    dx = min(max(slope * dy, dx0), dx1)
+    return a * dx * dx + 2.0 * b * dx * dy + c * dy * dy <= q2
 
 
 @njit(inline="always", **_KERNEL)
@@ -208,15 +206,16 @@ def _rows(mx, my, a, b, c, p_min, cx0, cx1, by0, by1):  # pragma: no cover - com
 
     A rotated, elongated ellipse leaves the corners of its box empty; the rows dropped here are
     ones where every pixel fails the exact test anyway (power < p_min, i.e. Q > -2 p_min; the
-    threshold is widened, so float32 rounding of the exact test cannot matter)."""
+    threshold and the columns are widened, so float32 rounding of the exact test cannot matter)."""
     q2 = -2.0 * float(p_min) * 1.001 + 0.01
     mxd, myd, ad, bd, cd = float(mx), float(my), float(a), float(b), float(c)
-    inv_a = 1.0 / ad
+    slope = -bd / ad
+    dx0, dx1 = float(cx0) - 0.01 - mxd, float(cx1) - 0.99 - mxd
     lo = by0
-    while lo < by1 and not _row_meets(lo, mxd, myd, ad, inv_a, bd, cd, q2, cx0, cx1):
+    while lo < by1 and not _row_meets(lo, mxd, myd, ad, bd, cd, slope, q2, dx0, dx1):
         lo += 1
     hi = by1
-    while hi > lo and not _row_meets(hi - 1, mxd, myd, ad, inv_a, bd, cd, q2, cx0, cx1):
+    while hi > lo and not _row_meets(hi - 1, mxd, myd, ad, bd, cd, slope, q2, dx0, dx1):
         hi -= 1
     return lo, hi
 
