@@ -168,3 +168,28 @@ def test_backend_choice():
         resolve_backend("cuda_fast", torch.device("cpu"))
     with pytest.raises(ConfigError, match="runs on cpu tensors"):
         resolve_backend("fused", torch.device("cuda"))
+
+
+def test_pixel_loops_compile_to_vector_code():
+    """The compositing spans stay vectorised: a change that breaks one of the rules written above
+    ``raster_fused.S_X`` passes every value test and is only slower, so the assembly is read here
+    (compiled afresh, since numba cannot show the assembly of cached code)."""
+    import re
+
+    import llvmlite.binding as llvm
+    import numpy as np
+    from numba import njit
+
+    from bench.slam import raster_fused as rf
+
+    if "+avx2" not in llvm.get_host_cpu_features().flatten().split(","):
+        pytest.skip("the host has no AVX2")
+    flags = {k: v for k, v in rf._KERNEL.items() if k != "cache"}
+    f32, u64 = np.float32, np.uint64
+    gaussian = [f32(v) for v in (0.0, 3.0, 1.0, 1.0, 1.0, 0.0, 1.0, 0.5, -5.0, 1.0, 1.0, 1.0, 1.0, 3.0)]
+    for span, size in ((rf._forward_span, rf.S_SIZE), (rf._backward_span, rf.B_SIZE)):
+        fn = njit(**flags)(span.py_func)
+        fn(np.zeros(size, f32), u64(0), u64(16), *gaussian)
+        asm = fn.inspect_asm(fn.signatures[0])
+        packed = re.findall(r"\bv\w+ps\s[^\n]*%ymm", asm)  # packed float32 arithmetic on 8 lanes
+        assert len(packed) > 60, f"{span.__name__}: {len(packed)} packed AVX2 instructions"
