@@ -111,7 +111,9 @@ class SlamConfig:
     # (road and facades look alike a metre over) while the depth L1 grows several-fold, so the depth check
     # catches the metre; but its baseline follows a map whose error grows (slam=splatam's stalls), and there
     # the colour check is the one that catches a gross loss. Figures: reports/lost_detector/README.md
-    lost_check: str = "both"
+    # The default stays the colour check: at ratio 3 the depth check also flagged, at the true pose, a frame
+    # showing 4% unmapped street (tests/slam/test_system.py), so it is opt-in until its threshold holds.
+    lost_check: str = "color"
     lost_depth_ratio: float = 3.0
     lost_depth_floor_m: float = 0.3
     lost_baseline_frames: int = 20
