@@ -395,14 +395,10 @@ def drive_frames(cfg: RunConfig, parts: Parts, out: Path, record: dict[str, Any]
     test_signal = _test_signal_frame() if start is None else None
     every = cfg.checkpoint.every
     parts.probe.start_window()
-    with open(out / schema.KEYFRAMES_FILE, "a" if start else "w", newline="") as fh, \
+    with FlushedRows(out / schema.KEYFRAMES_FILE, schema.KEYFRAME_COLUMNS, start is not None) as keyframes, \
             TumAppender(out / TRAJ_EST, append=start is not None) as traj, \
             FlushedRows(out / schema.MILESTONES_FILE, schema.MILESTONE_COLUMNS, start is not None,
                         bool(cfg.eval.at_frames)) as milestones:
-        writer = csv.DictWriter(fh, fieldnames=schema.KEYFRAME_COLUMNS)
-        if start is None:
-            writer.writeheader()
-            fh.flush()
         try:
             for i in range(first, parts.n_frames):
                 frame = parts.seq[i]  # loading is not SLAM time
@@ -424,8 +420,7 @@ def drive_frames(cfg: RunConfig, parts: Parts, out: Path, record: dict[str, Any]
                 else:
                     row = keyframe_row(parts, res, frame.index, between)
                     between = dict.fromkeys(between, 0)
-                    writer.writerow(row)
-                    fh.flush()
+                    keyframes.writerow(row)
                     drive.windows.append(row)
                 if i + 1 in cfg.eval.at_frames:  # before the checkpoint, which counts its row
                     with parts.probe.paused():
@@ -488,13 +483,18 @@ class FlushedRows:
             self._fh.close()
 
 
+def tracked_c2w(system: Any, n_done: int) -> list[torch.Tensor]:
+    """The first ``n_done`` tracked poses as camera-to-world, in float64 on the CPU, as the metrics read them."""
+    return [inverse(p.detach().double().cpu()) for p in system.poses[:n_done]]  # each [4, 4]
+
+
 @torch.no_grad()
 def milestone_row(cfg: RunConfig, parts: Parts, drive: Drive, out: Path) -> dict[str, Any]:
     """The map and trajectory so far, scored as if the drive ended here (``eval.at_frames``)."""
     t0 = time.perf_counter()
     system = parts.system
     n_done = len(drive.timestamps_s)
-    est_c2w = [inverse(p.detach().double().cpu()) for p in system.poses[:n_done]]
+    est_c2w = tracked_c2w(system, n_done)
     res = _evaluate(cfg, out, parts, est_c2w, drive, system.device, write_gt=False)
     mem = schema.memory_summary(drive.windows, system.device.type)
     row = {k: res.get(k) for k in ("path_length_m", "ate_rmse_m", "psnr_db", "ssim", "lpips", "eval_frames")}
@@ -592,7 +592,7 @@ def finish(cfg: RunConfig, parts: Parts, drive: Drive, out: Path, device: torch.
     metrics["gaussians_pruned_total"] = sum(w["n_pruned"] for w in drive.windows)
     metrics["prune_candidates_total"] = sum(w["n_candidates"] for w in drive.windows)
     metrics["keep_ratio"] = parts.keys["keep_ratio"]  # as in run.keep_ratio: null when nothing is pruned
-    est_c2w = [inverse(p.detach().double().cpu()) for p in system.poses[:n_done]]
+    est_c2w = tracked_c2w(system, n_done)
     t_eval = time.perf_counter()
     metrics.update(_evaluate(cfg, out, parts, est_c2w, drive, device, images=not partial))
     metrics["eval_s"] = round(time.perf_counter() - t_eval, 3)  # ATE, rendering, PSNR/SSIM/LPIPS

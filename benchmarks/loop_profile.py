@@ -35,9 +35,7 @@ from pathlib import Path
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED_KITTI = ROOT.parent.parent / "shared" / "data" / "kitti"
-if not SHARED_KITTI.exists():
-    SHARED_KITTI = Path("/work/shared/data/kitti")
+SHARED_KITTI = ROOT.parent / "shared" / "data" / "kitti"  # ../shared beside the checkout
 DEFAULTS = {
     "kitti": f"dataset=kitti dataset.root={SHARED_KITTI} seq=06 max_frames=20 threads=2",
     "synthetic": "threads=2",

@@ -13,12 +13,12 @@ import pandas as pd
 import yaml
 
 from bench.errors import ReportError
-from bench.report.collect import collect
+from bench.report.collect import collect, finished_run_tables, grouped_run_tables, stack_run_tables
 from bench.report.names import use_method_names
 from bench.report.paper import load_paper_tables
 from bench.report.plots import DPI, make_plots, read_keyframes
 from bench.report.render import tables_markdown, to_latex
-from bench.report.scale import MILESTONES_FILE, milestone_rows, scale_markdown
+from bench.report.scale import MILESTONES_FILE, read_milestones, scale_markdown
 from bench.report.settings import mixed_settings, settings_markdown
 from bench.report.stats import confidence_interval
 from bench.report.tables import SELECTABLE_METRICS, Table, build_tables
@@ -107,8 +107,10 @@ def _make_report(
 
     files = [out / "runs.csv"]
     runs.to_csv(files[0], index=False)
+    keyframes = finished_run_tables(runs, lambda run_dir: read_keyframes(run_dir, warnings.append))
+    milestones = finished_run_tables(runs, lambda run_dir: read_milestones(run_dir, warnings.append))
     files.append(out / KEYFRAMES_FILE)
-    keyframe_rows(runs, warnings.append).to_csv(files[-1], index=False)
+    stack_run_tables(keyframes).to_csv(files[-1], index=False)
 
     tables, table_warnings = build_tables(runs, load_paper_tables() if paper else None, baseline, metrics)
     warnings += table_warnings
@@ -122,33 +124,20 @@ def _make_report(
     files.append(out / "stats.csv")
     seed_statistics(tables, baseline).to_csv(files[-1], index=False)
 
-    milestones = milestone_rows(runs, warnings.append)
-    long_drives = bool(len(milestones))
+    long_drives = any(len(t) for t in milestones.values())
     if long_drives:  # runs made with eval.at_frames: the scale section (bench/report/scale.py)
         files.append(out / MILESTONES_FILE)
-        milestones.to_csv(files[-1], index=False)
+        stacked = stack_run_tables(milestones)
+        stacked.to_csv(files[-1], index=False)
         files.append(out / "scale.md")
-        kf = {str(p): k for p in runs["path"] if (k := read_keyframes(Path(p), warnings.append)) is not None}
-        files[-1].write_text(scale_markdown(runs, kf, milestones, baseline), encoding="utf-8")
-    files += make_plots(runs, out, warnings.append, formats, dpi, long_drives=long_drives)
+        files[-1].write_text(scale_markdown(runs, keyframes, stacked, baseline), encoding="utf-8")
+    files += make_plots(runs, out, warnings.append, formats, dpi, keyframes=keyframes, milestones=milestones,
+                        long_drives=long_drives)
     return ReportResult(out, runs, tables, files, collection.skipped, warnings)
 
 
 KEYFRAMES_FILE = "keyframes.csv"  # every finished run's keyframes.csv rows, keyed by its runs.csv path
 TEXT_COLUMNS = ("strategy", "method", "dataset", "seq", "slam_preset", "status", "path")
-
-
-def keyframe_rows(runs: pd.DataFrame, warn) -> pd.DataFrame:
-    """The per-keyframe rows the figures read, for every finished run: with runs.csv they make a
-    report folder that ``redraw`` can draw again after the run dirs are gone."""
-    frames = []
-    for path, status in zip(runs["path"], runs["status"], strict=True):
-        if status not in ("ok", "lost"):
-            continue
-        kf = read_keyframes(Path(path), warn)
-        if kf is not None:
-            frames.append(kf.assign(path=str(path)))
-    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=["path"])
 
 
 def redraw(report_dir: Path, formats: tuple[str, ...] = ("png",), dpi: int = DPI) -> ReportResult:
@@ -165,28 +154,30 @@ def redraw(report_dir: Path, formats: tuple[str, ...] = ("png",), dpi: int = DPI
         runs = pd.read_csv(runs_path, dtype={c: str for c in TEXT_COLUMNS})
         if "seed" in runs:
             runs["seed"] = runs["seed"].astype("Int64")
-        kf_path = report_dir / KEYFRAMES_FILE
-        rows = pd.read_csv(kf_path, dtype={"path": str}) if kf_path.is_file() else pd.DataFrame(columns=["path"])
     except (OSError, ValueError) as exc:
         raise ReportError(f"cannot read the report tables in '{report_dir}': {exc}") from None
     missing = sorted({"strategy", "dataset", "seq", "status", "path", "keep_ratio"} - set(runs.columns))
     if missing:
         raise ReportError(f"expected runs.csv columns {', '.join(missing)} in '{runs_path}', found none of them")
     warnings: list[str] = []
-    if not len(rows):
+    keyframes = _stored_run_tables(report_dir / KEYFRAMES_FILE)
+    if not keyframes:
         warnings.append(f"no {KEYFRAMES_FILE} in '{report_dir}': per-keyframe figures need the run dirs")
-    keyframes = {str(p): g.drop(columns="path").reset_index(drop=True) for p, g in rows.groupby("path")}
-    ms_path = report_dir / MILESTONES_FILE
-    milestones = {}
-    if ms_path.is_file():
-        try:
-            ms_rows = pd.read_csv(ms_path, dtype={"path": str})
-        except (OSError, ValueError) as exc:
-            raise ReportError(f"cannot read '{ms_path}': {exc}") from None
-        milestones = {str(p): g.drop(columns="path").reset_index(drop=True) for p, g in ms_rows.groupby("path")}
+    milestones = _stored_run_tables(report_dir / MILESTONES_FILE)
     files = make_plots(runs, report_dir, warnings.append, formats, dpi, keyframes=keyframes, milestones=milestones,
                        long_drives=bool(milestones))
     return ReportResult(report_dir, runs, [], files, [], warnings)
+
+
+
+def _stored_run_tables(path: Path) -> dict[str, pd.DataFrame]:
+    """A report folder's stacked per-run table split back by run path; {} when the folder has none."""
+    if not path.is_file():
+        return {}
+    try:
+        return grouped_run_tables(pd.read_csv(path, dtype={"path": str}))
+    except (OSError, ValueError) as exc:
+        raise ReportError(f"cannot read '{path}': {exc}") from None
 
 
 STATS_COLUMNS: tuple[str, ...] = (

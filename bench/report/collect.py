@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -204,3 +204,46 @@ def is_missing(value: Any) -> bool:
     if value is None or value is pd.NA:
         return True
     return isinstance(value, float) and math.isnan(value)
+
+
+def read_run_table(path: Path, required: Iterable[str | tuple[str, ...]], warn: Callable[[str], None],
+                   where: str = "") -> pd.DataFrame | None:
+    """One of a run's csv tables (keyframes.csv, milestones.csv), or None with a warning when it is
+    not a table holding ``required`` (a tuple there: any one of its columns will do). A missing file
+    is None without a warning: the run did not write that table."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+    where = f" {where}" if where else ""
+    try:
+        rows = pd.read_csv(path)
+    except (OSError, ValueError) as exc:
+        warn(f"skipped {path}{where}: expected a csv table, found {exc}")
+        return None
+    have = set(rows.columns)
+    missing = [c if isinstance(c, str) else "/".join(c) for c in required
+               if not (have & ({c} if isinstance(c, str) else set(c)))]
+    if missing:
+        warn(f"skipped {path}{where}: expected columns {', '.join(missing)}, found {list(rows.columns)}")
+        return None
+    return rows
+
+
+def finished_run_tables(runs: pd.DataFrame, read: Callable[[Path], pd.DataFrame | None]) -> dict[str, pd.DataFrame]:
+    """``read`` of every finished (ok or lost) run's dir, keyed by its runs.csv path (runs without one left out)."""
+    tables = {}
+    for path, status in zip(runs["path"], runs["status"], strict=True):
+        if status in ("ok", "lost") and (table := read(Path(path))) is not None:
+            tables[str(path)] = table
+    return tables
+
+
+def stack_run_tables(tables: dict[str, pd.DataFrame]) -> pd.DataFrame:
+    """The per-run tables as one, with each row's runs.csv ``path`` (a report folder's keyframes.csv and
+    milestones.csv, which ``grouped_run_tables`` splits again)."""
+    frames = [t.assign(path=p) for p, t in tables.items() if len(t)]
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=["path"])
+
+
+def grouped_run_tables(rows: pd.DataFrame) -> dict[str, pd.DataFrame]:
+    return {str(p): g.drop(columns="path").reset_index(drop=True) for p, g in rows.groupby("path")}

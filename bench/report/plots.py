@@ -27,7 +27,7 @@ from matplotlib.ticker import FormatStrFormatter, NullFormatter
 from bench import schema, viz
 from bench.errors import MetricError, ReportError
 from bench.metrics.trajectory import MAX_DIFF_S, Trajectory, aligned_positions, read_tum
-from bench.report.collect import is_missing
+from bench.report.collect import is_missing, read_run_table
 from bench.report.names import dataset_name, file_token, method_name, sequence_sort_key
 from bench.report.style import (
     Panel,
@@ -91,16 +91,8 @@ def read_keyframes(run_dir: Path, warn: Warn) -> pd.DataFrame | None:
     stored = _output.get("keyframes", {}).get(str(run_dir))
     if stored is not None:
         return stored
-    path = Path(run_dir) / schema.KEYFRAMES_FILE
-    if not path.is_file():
-        return None
-    try:
-        frame = pd.read_csv(path)
-    except (OSError, ValueError) as exc:
-        warn(f"skipped {path} in plots: expected a csv table, found {exc}")
-        return None
-    if "state_mib" not in frame.columns or not ({"frame", "kf"} & set(frame.columns)):
-        warn(f"skipped {path} in plots: expected columns kf/frame and state_mib, found {list(frame.columns)}")
+    frame = read_run_table(Path(run_dir) / schema.KEYFRAMES_FILE, (("kf", "frame"), "state_mib"), warn, "in plots")
+    if frame is None:
         return None
     distance = distance_driven(Path(run_dir), frame)
     return frame if distance is None else frame.assign(distance_m=distance)
@@ -115,8 +107,8 @@ def distance_driven(run_dir: Path, keyframes: pd.DataFrame) -> np.ndarray | None
     if "frame" not in keyframes.columns or keyframes.empty or not path.is_file():
         return None
     try:
-        xyz = np.loadtxt(path, comments="#", ndmin=2)[:, 1:4]  # [F, 3] m
-    except (OSError, ValueError):
+        xyz = read_tum(path, allow_duplicates=True).positions_m  # [F, 3] m
+    except MetricError:
         return None
     along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xyz, axis=0), axis=1))])  # [F] m
     pos = keyframes["frame"].to_numpy(dtype=int) - int(keyframes["frame"].iloc[0])

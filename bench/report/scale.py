@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from bench import schema
+from bench.report.collect import read_run_table
 from bench.report.names import method_name
 from bench.report.paper import LOST, PAPER_STRATEGY, load_paper_tables
 from bench.report.stats import welch_p, within_noise
@@ -33,30 +34,7 @@ SLOPE_PER_M = 100.0  # slopes are given per 100 m
 
 
 def read_milestones(run_dir: Path, warn: Warn) -> pd.DataFrame | None:
-    path = Path(run_dir) / MILESTONES_FILE
-    if not path.is_file():
-        return None
-    try:
-        rows = pd.read_csv(path)
-    except (OSError, ValueError) as exc:
-        warn(f"skipped {path}: expected a csv table, found {exc}")
-        return None
-    missing = {"frames", "ate_rmse_m", "psnr_db", "path_length_m"} - set(rows.columns)
-    if missing:
-        warn(f"skipped {path}: expected columns {', '.join(sorted(missing))}, found {list(rows.columns)}")
-        return None
-    return rows
-
-
-def milestone_rows(runs: pd.DataFrame, warn: Warn) -> pd.DataFrame:
-    """Every finished run's milestone rows with its runs.csv path (empty when no run has any)."""
-    frames = []
-    for path, status in zip(runs["path"], runs["status"], strict=True):
-        if status in ("ok", "lost"):
-            ms = read_milestones(Path(path), warn)
-            if ms is not None and len(ms):
-                frames.append(ms.assign(path=str(path)))
-    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=["path"])
+    return read_run_table(Path(run_dir) / MILESTONES_FILE, ("frames", "ate_rmse_m", "psnr_db", "path_length_m"), warn)
 
 
 def sequence_lengths() -> pd.DataFrame:
@@ -111,9 +89,8 @@ def _reference_length(dataset: str, seq: str, lengths: pd.DataFrame) -> tuple[st
     return f"{want[0].upper() if want[0] == 'kitti' else want[0]} {want[1]}", float(hit["path_length_m"].iloc[0])
 
 
-def _paper_memory_gb(strategy: str, seq: str) -> float | None:
+def _paper_memory_gb(table: pd.DataFrame, strategy: str, seq: str) -> float | None:
     """The paper's KITTI peak memory (GB) of the method behind ``strategy`` on ``seq``; None if it has none."""
-    table = load_paper_tables()
     rows = table[(table["table"] == "performance") & (table["dataset"] == "kitti") & (table["metric"] == "Memory_GB")
                  & (table["sequence"] == seq)]  # fmt: skip
     for method, value in zip(rows["method"], rows["value"], strict=True):
@@ -125,7 +102,7 @@ def _paper_memory_gb(strategy: str, seq: str) -> float | None:
 def scale_markdown(runs: pd.DataFrame, keyframes: dict[str, pd.DataFrame], milestones: pd.DataFrame,
                    baseline: str = "none") -> str:
     """The scale section: growth per 100 m with the extrapolation, accuracy at the milestones, the answer."""
-    lengths = sequence_lengths()
+    lengths, paper_table = sequence_lengths(), load_paper_tables()
     done = runs[runs["status"].isin(["ok", "lost"])]
     by_path = {str(p): g.sort_values("frames") for p, g in milestones.groupby("path")} if len(milestones) else {}
     lines = ["# Long drives: growth with distance, and accuracy at the milestones", ""]
@@ -138,7 +115,7 @@ def scale_markdown(runs: pd.DataFrame, keyframes: dict[str, pd.DataFrame], miles
                 continue
             ref_name, ref_m = _reference_length(dataset, seq, lengths)
             lines += [f"## {dataset} {seq}", ""]
-            lines += _growth_table(one, found, keyframes, ref_name, ref_m, baseline)
+            lines += _growth_table(one, found, keyframes, ref_name, ref_m, baseline, paper_table)
             lines += _accuracy_table(one, found, by_path)
             lines += _answer(one, found, by_path, baseline)
     return "\n".join(lines) + "\n"
@@ -149,7 +126,7 @@ def _variant_rows(one: pd.DataFrame, found: list[Variant]) -> list[tuple[Variant
 
 
 def _growth_table(one: pd.DataFrame, found: list[Variant], keyframes: dict[str, pd.DataFrame], ref_name: str,
-                  ref_m: float, baseline: str) -> list[str]:
+                  ref_m: float, baseline: str, paper_table: pd.DataFrame) -> list[str]:
     lines = [
         f"Growth: least-squares lines through every keyframe after the first (mean ± std over seeds); "
         f"'at {ref_name}' extends each line to that sequence's whole length ({ref_m:.0f} m), a straight-line "
@@ -183,7 +160,7 @@ def _growth_table(one: pd.DataFrame, found: list[Variant], keyframes: dict[str, 
         ratio = p[0] / base_peak if np.isfinite(base_peak) and base_peak > 0 and np.isfinite(p[0]) else float("nan")
         at_g = _mean_std([s["gaussians_at_0m"] + s["gaussians_per_100m"] * ref_m / SLOPE_PER_M for s in got])
         at_p = _mean_std([s["peak_mib_at_0m"] + s["peak_mib_per_100m"] * ref_m / SLOPE_PER_M for s in got])
-        paper = _paper_memory_gb(variant.strategy, seq) if ref_name.startswith("KITTI") else None
+        paper = _paper_memory_gb(paper_table, variant.strategy, seq) if ref_name.startswith("KITTI") else None
         lines.append(
             f"| {variant.label} | {len(got)} | {statistics.fmean(s['distance_m'] for s in got):.0f} | "
             f"{_fmt(*g, 0)} | {_fmt(*p, 2)} | {_fmt(*_mean_std([s['state_mib_per_100m'] for s in got]), 2)} | "
