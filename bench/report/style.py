@@ -58,6 +58,7 @@ class Panel:
     title: str
     variants: tuple[Variant, ...]
     preset: str
+    usual_ratio: float | None = None  # the keep ratio the preset's main panel shows: solid in a ratio panel too
 
 
 def _preset_title(preset: str, several: bool) -> str:
@@ -79,27 +80,32 @@ def panel_groups(found: Sequence[Variant]) -> list[Panel]:
         usual = ratios.most_common(1)[0][0] if ratios else None
         main = [v for v in mine if per_strategy[v.strategy] == 1 or v.keep_ratio in (usual, None)]
         title = _preset_title(preset, several)
-        panels += _cut(title, main, preset)
+        panels += _cut(title, main, preset, usual)
         for strategy in [s for s, n in per_strategy.items() if n > 1]:
             swept = [v for v in mine if v.strategy == strategy]
             base = [v for v in mine if v.strategy == BASELINE and strategy != BASELINE]
             sweep_title = (f"{title}:\n" if title else "") + f"{method_name(strategy)} by keep ratio"
-            panels += _cut(sweep_title, base + swept, preset)
+            panels += _cut(sweep_title, base + swept, preset, usual)
     return panels
 
 
-def _cut(title: str, variants: list[Variant], preset: str) -> list[Panel]:
+def _cut(title: str, variants: list[Variant], preset: str, usual: float | None) -> list[Panel]:
     chunks = [variants[i : i + MAX_SERIES] for i in range(0, len(variants), MAX_SERIES)]
     if len(chunks) == 1:
-        return [Panel(title, tuple(chunks[0]), preset)]
-    return [Panel(f"{title} ({i + 1}/{len(chunks)})", tuple(c), preset) for i, c in enumerate(chunks)]
+        return [Panel(title, tuple(chunks[0]), preset, usual)]
+    return [Panel(f"{title} ({i + 1}/{len(chunks)})", tuple(c), preset, usual) for i, c in enumerate(chunks)]
 
 
 def ratio_style(variant: Variant, panel: Panel) -> tuple[str | tuple, str]:
-    """(line style, marker): solid and round unless the panel holds several ratios of the strategy."""
+    """(line style, marker): solid and round unless the panel holds several ratios of the strategy; then
+    the preset's usual ratio keeps solid and round, so one run looks the same in its preset's panel and
+    in the ratio panel, and the others take the next styles in ratio order."""
     same = sorted(v.keep_ratio for v in panel.variants if v.strategy == variant.strategy and v.keep_ratio is not None)
     if len(same) < 2 or variant.keep_ratio is None:
         return RATIO_STYLES[0]
+    if panel.usual_ratio in same:
+        same.remove(panel.usual_ratio)
+        same.insert(0, panel.usual_ratio)
     return RATIO_STYLES[same.index(variant.keep_ratio) % len(RATIO_STYLES)]
 
 

@@ -10,7 +10,7 @@ import pytest
 from bench.report.build import redraw
 from bench.report.collect import collect
 from bench.report.plots import make_plots, seed_band
-from bench.report.style import COLOURS, MAX_SERIES, panel_groups, strategy_colour
+from bench.report.style import COLOURS, MAX_SERIES, RATIO_STYLES, panel_groups, ratio_style, strategy_colour
 from bench.report.tables import Variant
 
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -68,6 +68,16 @@ def test_panels_hold_at_most_seven_series_and_split_presets_and_sweeps() -> None
     sweep = [p for p in panels if "keep ratio" in p.title]
     assert len(sweep) == 1 and {v.keep_ratio for v in sweep[0].variants if v.strategy == "area"} == {0.2, 0.4, 0.6, 0.8}
     assert any(v.strategy == "none" for v in sweep[0].variants)  # the baseline beside the sweep
+
+
+def test_a_run_looks_the_same_in_its_preset_panel_and_in_the_ratio_panel() -> None:
+    found = [Variant(s, 0.4, s, "splatam") for s in ("none", "area")]
+    found += [Variant("area", k, "area", "splatam") for k in (0.2, 0.6, 0.8)]
+    main, sweep = panel_groups(found)
+    usual = Variant("area", 0.4, "area", "splatam")
+    assert ratio_style(usual, main) == ratio_style(usual, sweep) == RATIO_STYLES[0]
+    others = [ratio_style(Variant("area", k, "area", "splatam"), sweep) for k in (0.2, 0.6, 0.8)]
+    assert len(set(others)) == 3 and RATIO_STYLES[0] not in others
 
 
 def test_a_strategy_has_one_colour_whatever_else_ran() -> None:
