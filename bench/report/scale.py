@@ -148,13 +148,14 @@ def _growth_table(one: pd.DataFrame, found: list[Variant], keyframes: dict[str, 
             if s is not None:
                 got.append(s)
         slopes[variant] = got
-    base = next((s for v, s in slopes.items() if v.strategy == baseline), [])
-    base_peak, _ = _mean_std([s["peak_mib_per_100m"] for s in base])
     seq = ref_name.split()[-1]
     for variant, got in slopes.items():
         if not got:
             lines.append(f"| {variant.label} | 0 |" + " - |" * 9)
             continue
+        base = next((s for v, s in slopes.items()
+                     if v.strategy == baseline and v.slam_preset == variant.slam_preset), [])
+        base_peak, _ = _mean_std([s["peak_mib_per_100m"] for s in base])
         g = _mean_std([s["gaussians_per_100m"] for s in got])
         p = _mean_std([s["peak_mib_per_100m"] for s in got])
         ratio = p[0] / base_peak if np.isfinite(base_peak) and base_peak > 0 and np.isfinite(p[0]) else float("nan")
@@ -206,33 +207,44 @@ def _accuracy_table(one: pd.DataFrame, found: list[Variant], by_path: dict[str, 
 
 
 def _answer(one: pd.DataFrame, found: list[Variant], by_path: dict[str, pd.DataFrame], baseline: str) -> list[str]:
-    """At the longest milestone every variant reached: which keep ATE and PSNR within seed noise of the
-    baseline (Welch, p >= 0.05), and the smallest peak among them."""
+    """At the longest milestone every variant reached: which keep ATE and PSNR within seed noise of their
+    preset's baseline (Welch, p >= 0.05), and per preset the smallest peak of each strategy among those."""
     frames = _milestone_frames(one, by_path)
     rows = _variant_rows(one, found)
-    base = next((vr for v, vr in rows if v.strategy == baseline), None)
-    if not frames or base is None:
+    bases = {v.slam_preset: vr for v, vr in rows if v.strategy == baseline}
+    if not frames or not bases:
         return ["No baseline runs at the milestones: no answer.", ""]
     last = frames[-1]
-    b_ate, b_psnr = _at(by_path, base, last, "ate_rmse_m"), _at(by_path, base, last, "psnr_db")
-    lines = [f"The answer at {last} frames: within noise = Welch p >= 0.05 against {method_name(baseline)} on both "
-             "ATE and PSNR; peak = the headline peak over the drive.", "",
+    lines = [f"The answer at {last} frames: within noise = Welch p >= 0.05 against {method_name(baseline)} of the "
+             "same preset on both ATE and PSNR; peak = the headline peak over the drive.", "",
              "| method | seeds ok | ATE m | PSNR dB | peak MiB | within noise |", "|---|---|---|---|---|---|"]
-    best: tuple[float, str] | None = None
+    best: dict[str, dict[str, tuple[float, str]]] = {}  # preset -> strategy -> (smallest peak within noise, label)
     for variant, vr in rows:
         ate, psnr = _at(by_path, vr, last, "ate_rmse_m"), _at(by_path, vr, last, "psnr_db")
         peak = _at(by_path, vr, last, "peak_mem_mib")
+        base = bases.get(variant.slam_preset)
         if variant.strategy == baseline:
             verdict = "(baseline)"
+        elif base is None:
+            verdict = "n/a (no baseline of this preset)"
         else:
-            p_ate, p_psnr = welch_p(ate, b_ate), welch_p(psnr, b_psnr)
+            p_ate = welch_p(ate, _at(by_path, base, last, "ate_rmse_m"))
+            p_psnr = welch_p(psnr, _at(by_path, base, last, "psnr_db"))
             ok = within_noise(p_ate) and within_noise(p_psnr)
             verdict = "yes" if ok else ("n/a (< 2 seeds)" if p_ate is None or p_psnr is None else "no")
+        mine = best.setdefault(variant.slam_preset, {})
         if verdict in ("yes", "(baseline)") and peak:
             cand = (statistics.fmean(peak), variant.label)
-            best = cand if best is None or cand[0] < best[0] else best
+            if variant.strategy not in mine or cand[0] < mine[variant.strategy][0]:
+                mine[variant.strategy] = cand
+        else:
+            mine.setdefault(variant.strategy, (float("nan"), ""))
         lines.append(f"| {variant.label} | {len(ate)} | {_fmt(*_mean_std(ate), 3)} | {_fmt(*_mean_std(psnr), 2)} | "
                      f"{_fmt(*_mean_std(peak), 1)} | {verdict} |")
-    if best is not None:
-        lines += ["", f"Smallest peak within noise of the baseline at {last} frames: **{best[1]}**, {best[0]:.1f} MiB."]
+    lines += ["", f"Smallest peak at which each strategy stays within noise of its preset's baseline at {last} "
+              "frames:", ""]
+    for preset, per in best.items():
+        cells = [f"{method_name(s)}: {peak:.1f} MiB ({label})" if np.isfinite(peak) else f"{method_name(s)}: none"
+                 for s, (peak, label) in per.items()]
+        lines.append(f"- `slam={preset}`: " + "; ".join(cells) + ".")
     return lines + [""]

@@ -9,7 +9,8 @@ import pandas as pd
 import pytest
 
 from bench.report.plots import distance_driven
-from bench.report.scale import _reference_length, run_slopes, sequence_lengths
+from bench.report.scale import _answer, _reference_length, run_slopes, sequence_lengths
+from bench.report.tables import variants
 
 
 def test_slopes_are_per_100_m_and_skip_the_first_keyframe() -> None:
@@ -47,3 +48,27 @@ def test_lengths_match_the_shared_ground_truth(shared: Path) -> None:
     """The packaged lengths were computed from the ground truth beside the checkout (tests may read it)."""
     poses = np.loadtxt(shared / "data" / "trajectories" / "kitti" / "06.txt").reshape(-1, 3, 4)[:, :, 3]  # [F, 3]
     assert np.linalg.norm(np.diff(poses, axis=0), axis=1).sum() == pytest.approx(1232.9, abs=0.05)
+
+
+def test_each_preset_is_judged_against_its_own_baseline() -> None:
+    """splatam's pocket matches splatam's baseline and lies far from default's: judged against its own
+    preset it is within noise, and each preset names its own smallest peak per strategy."""
+    rows, by_path = [], {}
+    values = {("none", "default"): (0.50, 20.0, 70.0), ("pocket", "default"): (0.90, 18.0, 60.0),
+              ("none", "splatam"): (2.00, 16.0, 65.0), ("pocket", "splatam"): (2.02, 16.01, 50.0)}
+    for (strategy, preset), (ate, psnr, peak) in values.items():
+        for seed, jitter in ((0, -0.01), (1, 0.01)):
+            path = f"{strategy}_{preset}_{seed}"
+            rows.append({"path": path, "status": "ok", "strategy": strategy, "slam_preset": preset, "seed": seed,
+                         "keep_ratio": None if strategy == "none" else 0.4})
+            by_path[path] = pd.DataFrame({"frames": [400], "ate_rmse_m": [ate + jitter], "psnr_db": [psnr + jitter],
+                                          "peak_mem_mib": [peak + jitter]})
+    one = pd.DataFrame(rows)
+    text = "\n".join(_answer(one, variants(one), by_path, "none"))
+    verdicts = {line.split("|")[1].strip(): line.split("|")[6].strip() for line in text.splitlines()
+                if line.startswith("| ") and "[" in line}
+    assert verdicts["Ours (w/ Tile Budget) [default]"] == "no"
+    assert verdicts["Ours (w/ Tile Budget) [splatam]"] == "yes"
+    assert "`slam=splatam`: LSG-SLAM baseline: 65.0 MiB" in text and "Ours (w/ Tile Budget): 50.0 MiB" in text
+    assert "`slam=default`: LSG-SLAM baseline: 70.0 MiB (LSG-SLAM baseline [default]); " \
+           "Ours (w/ Tile Budget): none" in text
