@@ -169,7 +169,6 @@ def redraw(report_dir: Path, formats: tuple[str, ...] = ("png",), dpi: int = DPI
     return ReportResult(report_dir, runs, [], files, [], warnings)
 
 
-
 def _stored_run_tables(path: Path) -> dict[str, pd.DataFrame]:
     """A report folder's stacked per-run table split back by run path; {} when the folder has none."""
     if not path.is_file():
