@@ -535,6 +535,7 @@ def plot_pruned(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: War
         written.append(_save(fig, out / f"pruned_{file_token(dataset)}_{file_token(seq)}{token}_kf{kf:03d}.png"))
     return written
 
+
 def plot_milestones(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn) -> Path | None:
     """ATE and PSNR at each ``eval.at_frames`` milestone against the distance driven by then: what
     drives of those lengths score, from the same runs."""
