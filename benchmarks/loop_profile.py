@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import shlex
+import sys
 import tempfile
 import time
 from collections import defaultdict
@@ -35,6 +36,7 @@ from pathlib import Path
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # profile the checkout this file sits in, not whichever one is pip-installed
 SHARED_KITTI = ROOT.parent / "shared" / "data" / "kitti"  # ../shared beside the checkout
 DEFAULTS = {
     "kitti": f"dataset=kitti dataset.root={SHARED_KITTI} seq=06 max_frames=20 threads=2",

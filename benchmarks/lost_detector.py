@@ -11,6 +11,7 @@ threshold; for ``lost_patience`` frames) are marked.
 
     python benchmarks/lost_detector.py ... --kick-every=5 --out=PATH.csv [--plot=PATH.png]  # CSV rewritten per frame
     python benchmarks/lost_detector.py --out=PATH.csv --plot=PATH.png   # the figure again from the CSV alone
+    python benchmarks/lost_detector.py --compare=LABEL:PATH.csv,LABEL:PATH.csv --plot=PATH.png  # configs side by side
 
     python benchmarks/lost_detector.py slam=splatam dataset.n_frames=200 dataset.width=160 dataset.height=96
 """
@@ -149,6 +150,36 @@ def plot(csv_path: Path, png_path: Path, title: str) -> None:
     fig.savefig(png_path, dpi=110)
 
 
+def plot_compare(runs: list[tuple[str, Path]], png_path: Path, title: str) -> None:
+    """Several CSVs of this script (one config each) on shared axes: what each reads frame by frame, to tell
+    which setting keeps a drive tracked. Panels: pose error, depth L1, colour L1, confident share."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = (("gt_err_m", "pose error [m]\n(unaligned)"), ("depth_residual_m", "depth L1 [m]\n(confident pixels)"),
+              ("residual", "colour L1\n(confident pixels)"), ("sil_frac", "confident share\nof pixels"))
+    fig, axes = plt.subplots(len(panels), 1, figsize=(9, 9), sharex=True)
+    colors = plt.get_cmap("tab10").colors
+    for i, (label, path) in enumerate(runs):
+        with open(path) as fh:
+            rows = list(csv.DictReader(fh))
+        f = np.array([int(r["frame"]) for r in rows])
+        for ax, (name, _) in zip(axes, panels, strict=True):
+            ax.plot(f, [float(r[name]) for r in rows], color=colors[i % len(colors)], lw=1.2, label=label)
+    for ax, (_, ylabel) in zip(axes, panels, strict=True):
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+    axes[0].set_yscale("log")
+    axes[2].axhline(0.25, ls="--", color="grey", lw=1)  # lost_residual
+    axes[-1].set_xlabel("frame")
+    axes[0].legend(loc="upper left", fontsize=7, ncol=2)
+    axes[0].set_title(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(png_path, dpi=110)
+
+
 if __name__ == "__main__":
     args = sys.argv[1:]
     out = next((Path(a.split("=", 1)[1]) for a in args if a.startswith("--out=")), None)
@@ -156,7 +187,11 @@ if __name__ == "__main__":
     png = next((Path(a.split("=", 1)[1]) for a in args if a.startswith("--plot=")), None)
     overrides = [a for a in args if not a.startswith("--")]
     title = next((a.split("=", 1)[1] for a in args if a.startswith("--title=")), None)
-    if png and out and out.exists() and not overrides:  # only redraw: --out=CSV --plot=PNG [--title=TEXT]
+    compare = next((a.split("=", 1)[1] for a in args if a.startswith("--compare=")), None)
+    if compare and png:  # --compare=LABEL:CSV,LABEL:CSV --plot=PNG [--title=TEXT]
+        pairs = [item.rsplit(":", 1) for item in compare.split(",")]
+        plot_compare([(label, Path(p)) for label, p in pairs], png, title or "")
+    elif png and out and out.exists() and not overrides:  # only redraw: --out=CSV --plot=PNG [--title=TEXT]
         plot(out, png, title or out.stem)
     else:
         main(overrides, out, every)

@@ -33,12 +33,14 @@ from pathlib import Path
 
 import torch
 
-import bench.slam
-from bench.measure import MemoryProbe
-from bench.slam.raster import rasterize
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # the checkout this file sits in, not whichever one is pip-installed
+
+import bench.slam  # noqa: E402
+from bench.measure import MemoryProbe  # noqa: E402
+from bench.slam.raster import rasterize  # noqa: E402
 
 DEFAULT_POINTS = "2000x96x64,5000x160x96,20000x160x96,20000x320x192,50000x320x192,50000x640x384"
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def scene(n: int, width: int, height: int, device: torch.device, seed: int = 0, kind: str = "iso"):
