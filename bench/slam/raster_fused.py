@@ -86,6 +86,50 @@ def _bin_pairs(order, rect, n_tiles, tiles_x):  # pragma: no cover - compiled
     return counts, gid
 
 
+@njit(cache=True)
+def _depth_order(z, rect):  # pragma: no cover - compiled
+    """The Gaussians with a non-empty tile rectangle, in the order ``torch.argsort(z, stable=True)`` puts them.
+
+    An LSD radix sort (four stable 8-bit passes) on keys that order as the float32 values do; a general
+    comparison sort of every Gaussian was most of the binning's time, and culled Gaussians add no pair.
+    z: [N] float32; rect: [N, 4] int32. Returns [M] int32.
+    """
+    n = z.shape[0]
+    m = 0
+    for g in range(n):
+        if rect[g, 0] < rect[g, 1] and rect[g, 2] < rect[g, 3]:
+            m += 1
+    idx = np.empty(m, np.int32)
+    key = np.empty(m, np.int64)
+    bits = z.view(np.uint32)
+    j = 0
+    for g in range(n):
+        if rect[g, 0] < rect[g, 1] and rect[g, 2] < rect[g, 3]:
+            b = np.int64(bits[g]) if z[g] != 0 else np.int64(0)  # -0.0 ties with 0.0, as in argsort
+            # negative values: all bits flipped (larger magnitude first); positive: above every negative
+            key[j] = b ^ 0xFFFFFFFF if b >= 0x80000000 else b | 0x80000000
+            idx[j] = g
+            j += 1
+    idx2 = np.empty(m, np.int32)
+    key2 = np.empty(m, np.int64)
+    start = np.empty(257, np.int64)
+    for shift in range(0, 32, 8):
+        start[:] = 0
+        for i in range(m):
+            start[((key[i] >> shift) & 255) + 1] += 1
+        for d in range(256):
+            start[d + 1] += start[d]
+        for i in range(m):
+            d = (key[i] >> shift) & 255
+            p = start[d]
+            idx2[p] = idx[i]
+            key2[p] = key[i]
+            start[d] = p + 1
+        idx, idx2 = idx2, idx
+        key, key2 = key2, key
+    return idx
+
+
 # The compositing kernels are written so that LLVM vectorises their pixel loops (8 float32 lanes of
 # AVX2); breaking one of these rules gives scalar code and still passes every value test
 # (tests/slam/test_raster_fused.py reads the assembly):
@@ -120,6 +164,7 @@ SATURATION_CHECK = 8
 # one row per Gaussian, one 64-byte cache line: what the compositing reads of a Gaussian
 G_MX, G_MY, G_A, G_B, G_C, G_O, G_F0, G_EX, G_EY, G_PMIN = 0, 1, 2, 3, 4, 5, 6, 10, 11, 12
 G_SIZE = 16
+ALIGN_F32 = 16  # float32s in 64 bytes: a cache line, and an AVX-512 register
 _KERNEL = dict(cache=True, fastmath=True, error_model="numpy")  # numpy's model: no zero-division branch
 
 
@@ -175,6 +220,19 @@ def _pack(m2, conic, opac, feat, gp):  # pragma: no cover - compiled
         gp[g, G_PMIN] = -LN255 - np.log(o) - _F(1e-3) if o > _F(0.0) else _F(np.inf)
         for j in range(G_PMIN + 1, G_SIZE):
             gp[g, j] = _F(0.0)
+
+
+@njit(inline="always", **_KERNEL)
+def _aligned_state(size):  # pragma: no cover - compiled
+    """A tile-state buffer that starts on a 64-byte boundary.
+
+    LLVM's vectorised sums peel scalar iterations until their loads are aligned, so with a buffer at
+    an arbitrary address the order of the additions, and their rounding, followed the heap's state:
+    a process that had just compiled the kernels got other numbers than one that loaded them from
+    numba's cache."""
+    raw = np.empty(size + ALIGN_F32, np.float32)
+    skip = (ALIGN_F32 - (raw.ctypes.data // 4) % ALIGN_F32) % ALIGN_F32
+    return raw[skip:skip + size]
 
 
 @njit(inline="always", **_KERNEL)
@@ -304,7 +362,7 @@ def _forward(gid, tile_start, gp, width, height, tiles_x, stats, order, bounds,
     pair, the coverage sum over the tile, the pixels contributed to and the largest blending weight.
     """
     for th in prange(bounds.shape[0] - 1):
-        st = np.empty(S_SIZE, np.float32)
+        st = _aligned_state(S_SIZE)
         for j in range(bounds[th], bounds[th + 1]):
             t = order[j]
             x0, x1, y0, y1 = _tile_pixels(t, tiles_x, width, height)
@@ -440,7 +498,7 @@ def _backward(gid, tile_start, gp, width, height, tiles_x, order, bounds,
     pair's Gaussian, summed over the tile's pixels in a fixed order.
     """
     for th in prange(bounds.shape[0] - 1):
-        st = np.empty(B_SIZE, np.float32)
+        st = _aligned_state(B_SIZE)
         for j in range(bounds[th], bounds[th + 1]):
             t = order[j]
             x0, x1, y0, y1 = _tile_pixels(t, tiles_x, width, height)
@@ -609,6 +667,18 @@ def _project_bwd(means, log_scales, quats, rc, tc, cam, width, height, g_m2, g_c
         gsig = np.empty((3, 3), np.float32)
         grg = np.empty((3, 3), np.float32)
         for i in range(blk * PROJECT_BLOCK, min(n, (blk + 1) * PROJECT_BLOCK)):
+            if (g_m2[i, 0] == 0 and g_m2[i, 1] == 0 and g_cov[i, 0] == 0 and g_cov[i, 1] == 0
+                    and g_cov[i, 2] == 0 and g_z[i] == 0):
+                # nothing flows back (out of view: on a long drive most of the map): every product below is 0
+                for k in range(12):
+                    g_pose[i, k] = _F(0.0)
+                if gaussians:
+                    for k in range(3):
+                        g_means[i, k] = _F(0.0)
+                        g_log_scales[i, k] = _F(0.0)
+                    for k in range(4):
+                        g_quats[i, k] = _F(0.0)
+                continue
             mw0, mw1, mw2 = means[i, 0], means[i, 1], means[i, 2]
             px, py, pz = _to_camera(means, i, rc, tc)
             z_ok = abs(pz) >= _F(1e-6)
@@ -801,8 +871,12 @@ def bin_pairs(
 
     rect: [N, 4] int32 (x0, x1, y0, y1) tile rectangle of each Gaussian, empty when culled.
     """
-    order = torch.argsort(depths.detach(), stable=True).to(torch.int32)  # [N]
-    tile_start, gid = _bin_pairs(order.numpy(), rect.numpy(), n_tiles, tiles_x)
+    z = depths.detach().contiguous()
+    if z.dtype == torch.float32:
+        order = _depth_order(z.numpy(), rect.numpy())  # [M] the Gaussians that touch a tile, by depth
+    else:
+        order = torch.argsort(z, stable=True).to(torch.int32).numpy()  # [N]
+    tile_start, gid = _bin_pairs(order, rect.numpy(), n_tiles, tiles_x)
     return torch.from_numpy(tile_start), torch.from_numpy(gid)
 
 
