@@ -158,21 +158,43 @@ def _front(means, log_scales, quats, w2c, K, width, height, near_m) -> _Front:
     return _Front(means2d, cov2d, z, conic, rect, counts, radius_px, tile_id, tiles_x, tiles_y)
 
 
-def _front_fused(means, log_scales, quats, w2c, K, width, height, near_m) -> _Front:
-    """``_front`` computed by one compiled kernel (and its hand-written backward)."""
+def _front_fused(means, log_scales, quats, w2c, K, width, height, near_m) -> _FusedFront:
+    """The projection of every Gaussian by one compiled kernel (and its hand-written backward), and
+    the index of those in view: the rest of the fused path runs on them alone."""
     from bench.slam import raster_fused
 
     tiles_x = (width + TILE_PX - 1) // TILE_PX
     tiles_y = (height + TILE_PX - 1) // TILE_PX
     means2d, cov, z, rect, radius_px, tile_id = raster_fused.project(
         means, log_scales, quats, w2c, K, width, height, near_m, tiles_x, tiles_y)
-    a, b, c = cov.unbind(-1)
-    det = a * c - b * b
-    det_safe = torch.where(det > 0, det, torch.ones_like(det))
-    conic = torch.stack([c / det_safe, -b / det_safe, a / det_safe], -1)  # [N, 3] inverse covariance
-    cov2d = torch.stack([a, b, b, c], -1).reshape(-1, 2, 2)
-    counts = (rect[:, 1] - rect[:, 0]).long() * (rect[:, 3] - rect[:, 2]).long()
-    return _Front(means2d, cov2d, z, conic, rect, counts, radius_px, tile_id, tiles_x, tiles_y)
+    cov2d = cov[:, _COV2D_ORDER].reshape(-1, 2, 2)  # [N, 2, 2]
+    vis = raster_fused.in_view(rect)  # [V]
+    return _FusedFront(means2d, cov2d, cov, z, rect, radius_px, tile_id, tiles_x, tiles_y, vis)
+
+
+_COV2D_ORDER = torch.tensor([0, 1, 1, 2])  # (a, b, c) -> [[a, b], [b, c]]
+
+
+@dataclass
+class _FusedFront:
+    """The fused path's projection: per-Gaussian fields over all N, and ``vis`` [V] (int64), the
+    Gaussians with a tile, in index order.
+
+    On a long drive most of the map is behind the camera; everything after the projection (conic,
+    binning, compositing, the per-Gaussian reductions and their autograd) then costs per Gaussian in
+    view, not per Gaussian of the map. The pair list keeps its order (depth, ties by index), so the
+    results are those of the whole map, bit for bit: the others add no pair."""
+
+    means2d: torch.Tensor  # [N, 2]
+    cov2d: torch.Tensor  # [N, 2, 2]
+    cov: torch.Tensor  # [N, 3] (a, b, c)
+    z: torch.Tensor  # [N]
+    rect: torch.Tensor  # [N, 4] int32
+    radius_px: torch.Tensor  # [N] long
+    tile_id: torch.Tensor  # [N] long
+    tiles_x: int
+    tiles_y: int
+    vis: torch.Tensor  # [V] long
 
 
 def rasterize(
@@ -202,28 +224,42 @@ def rasterize(
     the same outputs and gradients up to float32 rounding.
     """
     backend = resolve_backend(backend, means.device)
-    front = _front_fused if backend == "fused" else _front
-    fr = front(means, log_scales, quats, w2c, K, width, height, near_m)
-    z = fr.z
-    z_paint = z if depth_far_m is None else torch.where(z < depth_far_m, z, torch.zeros_like(z))
     bg = torch.zeros(3, device=means.device, dtype=means.dtype) if background is None else background
     if backend == "fused":
-        return _render_fused(fr, opacities, colors, z_paint, bg, width, height, stats)
+        ff = _front_fused(means, log_scales, quats, w2c, K, width, height, near_m)
+        return _render_fused(ff, opacities, colors, depth_far_m, bg, width, height, stats)
+    fr = _front(means, log_scales, quats, w2c, K, width, height, near_m)
+    z_paint = _paint_depth(fr.z, depth_far_m)
     return _render_torch(fr, opacities, colors, z_paint, bg, width, height, stats)
 
 
-def _render_fused(fr: _Front, opacities, colors, z_paint, bg, width, height, stats) -> RasterOutput:
+def _paint_depth(z: torch.Tensor, depth_far_m: float | None) -> torch.Tensor:
+    """The depth each Gaussian paints: z, or 0 beyond ``depth_far_m``."""
+    return z if depth_far_m is None else torch.where(z < depth_far_m, z, torch.zeros_like(z))
+
+
+def _render_fused(ff: _FusedFront, opacities, colors, depth_far_m, bg, width, height, stats) -> RasterOutput:
     from bench.slam import raster_fused  # numba compiles on first use; the torch backend never needs it
 
-    n_tiles = fr.tiles_x * fr.tiles_y
-    tile_start, gid = raster_fused.bin_pairs(fr.rect.to(torch.int32), fr.z, n_tiles, fr.tiles_x)
-    feat = torch.cat([colors, z_paint[:, None]], 1).float()  # [N, 4]
+    n_tiles = ff.tiles_x * ff.tiles_y
+    n = colors.shape[0]
+    vis = ff.vis
+    z_v = ff.z.index_select(0, vis)  # [V]
+    tile_start, gid = raster_fused.bin_pairs(ff.rect.index_select(0, vis), z_v, n_tiles, ff.tiles_x)
     if gid.numel():
-        acc, t_final, coverage, hit_count, max_weight = raster_fused.composite(
-            fr.means2d.float(), fr.conic.float(), opacities.float(), feat, gid, tile_start,
-            width, height, fr.tiles_x, stats)
+        a, b, c = ff.cov.index_select(0, vis).unbind(-1)
+        det = a * c - b * b
+        det_safe = torch.where(det > 0, det, torch.ones_like(det))
+        conic = torch.stack([c / det_safe, -b / det_safe, a / det_safe], -1)  # [V, 3] inverse covariance
+        feat = torch.cat([colors.index_select(0, vis), _paint_depth(z_v, depth_far_m)[:, None]], 1).float()  # [V, 4]
+        acc, t_final, cov_v, hits_v, maxw_v = raster_fused.composite(
+            ff.means2d.index_select(0, vis).float(), conic.float(), opacities.index_select(0, vis).float(), feat,
+            gid, tile_start, width, height, ff.tiles_x, stats)
+        coverage = hit_count = max_weight = None
+        if stats:  # [N]: zero for the Gaussians out of view
+            coverage, hit_count, max_weight = torch.zeros(n), torch.zeros(n, dtype=torch.int64), torch.zeros(n)
+            coverage[vis], hit_count[vis], max_weight[vis] = cov_v, hits_v, maxw_v
     else:  # nothing in view: constant images that carry no gradient, as the torch backend returns
-        n = colors.shape[0]
         acc, t_final = torch.zeros(width * height, 4), torch.ones(width * height)
         coverage, hit_count, max_weight = torch.zeros(n), torch.zeros(n, dtype=torch.int64), torch.zeros(n)
     dtype = colors.dtype
@@ -231,12 +267,12 @@ def _render_fused(fr: _Front, opacities, colors, z_paint, bg, width, height, sta
         color=(acc[:, :3] + t_final[:, None] * bg).to(dtype).reshape(height, width, 3),
         depth=acc[:, 3].to(dtype).reshape(height, width),
         alpha=(1.0 - t_final).to(dtype).reshape(height, width),
-        means2d=fr.means2d,
-        cov2d=fr.cov2d,
-        depths=fr.z,
-        radius_px=fr.radius_px,
-        tile_id=fr.tile_id,
-        tiles_xy=(fr.tiles_x, fr.tiles_y),
+        means2d=ff.means2d,
+        cov2d=ff.cov2d,
+        depths=ff.z,
+        radius_px=ff.radius_px,
+        tile_id=ff.tile_id,
+        tiles_xy=(ff.tiles_x, ff.tiles_y),
         coverage=coverage.to(dtype) if stats else None,
         hit_count=hit_count if stats else None,
         max_weight=max_weight.to(dtype) if stats else None,

@@ -798,7 +798,7 @@ class _Project(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, means, log_scales, quats, w2c, cam, width, height, near_m, tiles_x, tiles_y):  # type: ignore[override]
-        _threads(int(means.shape[0]) // 8)  # a projection costs about an eighth of a pair's compositing
+        _threads(int(means.shape[0]) // 2)
         mw, ls, q = (t.detach().float().contiguous() for t in (means, log_scales, quats))
         rc = w2c.detach()[:3, :3].float().contiguous()
         tc = w2c.detach()[:3, 3].float().contiguous()
@@ -820,7 +820,7 @@ class _Project(torch.autograd.Function):
     @staticmethod
     def backward(ctx, g_m2, g_cov, g_z, *_):  # type: ignore[override]
         mw, ls, q, rc, tc, cam = ctx.saved_tensors
-        _threads(int(mw.shape[0]) // 8)
+        _threads(int(mw.shape[0]) // 2)
         width, height = ctx.dims
         n = mw.shape[0]
         g_m2 = torch.zeros(n, 2) if g_m2 is None else g_m2.float().contiguous()
@@ -878,6 +878,23 @@ def bin_pairs(
         order = torch.argsort(z, stable=True).to(torch.int32).numpy()  # [N]
     tile_start, gid = _bin_pairs(order, rect.numpy(), n_tiles, tiles_x)
     return torch.from_numpy(tile_start), torch.from_numpy(gid)
+
+
+@njit(cache=True)
+def _in_view(rect, out):  # pragma: no cover - compiled
+    """out[:V] = indices of the Gaussians with a non-empty tile rectangle, ascending; returns V."""
+    v = 0
+    for g in range(rect.shape[0]):
+        if rect[g, 0] < rect[g, 1] and rect[g, 2] < rect[g, 3]:
+            out[v] = g
+            v += 1
+    return v
+
+
+def in_view(rect: torch.Tensor) -> torch.Tensor:
+    """[V] int64: the Gaussians that touch a tile (rect [N, 4] int32 as ``project`` returns it), in index order."""
+    out = torch.empty(rect.shape[0], dtype=torch.int64)
+    return out[: _in_view(rect.numpy(), out.numpy())]
 
 
 class _Composite(torch.autograd.Function):
