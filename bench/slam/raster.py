@@ -41,7 +41,7 @@ class RasterOutput:
     depth: torch.Tensor  # [H, W] expected z (not normalised by alpha)
     alpha: torch.Tensor  # [H, W] accumulated opacity (silhouette)
     means2d: torch.Tensor  # [N, 2] projected centre, px
-    cov2d: torch.Tensor  # [N, 2, 2] screen covariance incl. low-pass, px^2
+    cov2d: torch.Tensor  # [N, 2, 2] screen covariance incl. low-pass, px^2; 0 where the centre is culled
     depths: torch.Tensor  # [N] camera z, m
     radius_px: torch.Tensor  # [N] int, ceil(3 sigma_max); 0 = not rendered
     tile_id: torch.Tensor  # [N] int, 16x16 tile holding the centre; -1 behind camera / outside image
@@ -137,7 +137,8 @@ def _front(means, log_scales, quats, w2c, K, width, height, near_m) -> _Front:
         # mis-projected footprints over the image
         in_x = (m2[:, 0] - K[0, 2]).abs() < 1.3 * 0.5 * width
         in_y = (m2[:, 1] - K[1, 2]).abs() < 1.3 * 0.5 * height
-        front = (z > near_m) & (det > 0) & in_x & in_y
+        centre = (z > near_m) & in_x & in_y  # [N] culled by its centre where False
+        front = centre & (det > 0)
         tmin_x = torch.clamp(torch.floor((m2[:, 0] - radius) / TILE_PX), 0, tiles_x)
         tmax_x = torch.clamp(torch.floor((m2[:, 0] + radius) / TILE_PX) + 1, 0, tiles_x)
         tmin_y = torch.clamp(torch.floor((m2[:, 1] - radius) / TILE_PX), 0, tiles_y)
@@ -155,6 +156,7 @@ def _front(means, log_scales, quats, w2c, K, width, height, near_m) -> _Front:
             + (m2[:, 0].clamp(0, width - 1) // TILE_PX).long(),
             torch.full_like(counts, -1),
         )
+    cov2d = torch.where(centre[:, None, None], cov2d, torch.zeros_like(cov2d))  # as the fused backend returns it
     return _Front(means2d, cov2d, z, conic, rect, counts, radius_px, tile_id, tiles_x, tiles_y)
 
 

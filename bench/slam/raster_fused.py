@@ -34,17 +34,22 @@ from __future__ import annotations
 import math
 import os
 
-# numba's OpenMP layer leaves its workers spinning between kernels, where they take the cores from
-# torch's own OpenMP pool and slow every torch op around the kernels; the work-queue layer parks
-# them. numba re-reads its configuration from the environment, so the choice is made there.
-os.environ.setdefault("NUMBA_THREADING_LAYER", "workqueue")
-
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from llvmlite import ir as llvm_ir  # noqa: E402
 from numba import njit, prange, types  # noqa: E402
 from numba.extending import intrinsic  # noqa: E402
+
+# numba's threading layer: OpenMP first, the work queue where no OpenMP runtime is installed. A
+# work-queue worker wakes and parks through the OS on every kernel and then shares the cores with
+# torch's spinning OpenMP pool, which slowed the whole SLAM loop on a 2-core machine (measured with
+# benchmarks/loop_profile.py; the README gives the figures). numba chooses when its first parallel kernel runs,
+# from its config, which it re-reads from the environment; both are set, whichever module
+# imported numba first. A layer named in NUMBA_THREADING_LAYER still wins.
+_LAYERS = "omp workqueue tbb"
+os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", _LAYERS)
+numba.config.THREADING_LAYER_PRIORITY = os.environ["NUMBA_THREADING_LAYER_PRIORITY"].split()
 
 TILE = 16
 _F = np.float32
@@ -515,7 +520,10 @@ def _backward(gid, tile_start, gp, width, height, tiles_x, order, bounds,
                 st[B_B0 + i] = st[B_B1 + i] = st[B_B2 + i] = st[B_B3 + i] = _F(0.0)
                 inside = y < y1 and x < x1
                 p = y * width + x if inside else 0
-                k_pix = last[p] if inside else -1
+                # a pixel no gradient reaches (outside tracking's mask, say) adds exact zeros: none walked
+                flows = inside and (g_acc[p, 0] != 0 or g_acc[p, 1] != 0 or g_acc[p, 2] != 0 or g_acc[p, 3] != 0
+                                    or g_t[p] != 0)
+                k_pix = last[p] if flows else -1
                 k_last = max(k_last, k_pix)
                 st[B_LK + i] = _F(k_pix - s) if k_pix >= 0 else _F(-1.0)
                 st[B_TC + i] = t_final[p] if inside else _F(1.0)
@@ -588,13 +596,27 @@ def _project_fwd(means, log_scales, quats, rc, tc, cam, width, height, near_m, t
                  m2, cov, z_out, rect, radius_px, tile_id):  # pragma: no cover - compiled
     """EWA projection as ``raster.project`` computes it, plus culling and the tile rectangle.
 
-    cam: (fx, fy, cx, cy); cov [N, 3] = (a, b, c) of the screen covariance incl. the 0.3 px low-pass.
+    cam: (fx, fy, cx, cy); cov [N, 3] = (a, b, c) of the screen covariance incl. the 0.3 px low-pass,
+    zero for a Gaussian culled by its centre (behind the near plane or outside the widened frustum).
     """
     fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
     lim_x, lim_y = _jacobian_limits(fx, fy, width, height)
     for i in prange(means.shape[0]):
         px, py, pz = _to_camera(means, i, rc, tc)
         zs = pz if abs(pz) >= _F(1e-6) else _F(1e-6)
+        mx = fx * px / zs + cx
+        my = fy * py / zs + cy
+        m2[i, 0], m2[i, 1] = mx, my
+        z_out[i] = pz
+        if not (pz > near_m and abs(mx - cx) < _F(1.3) * _F(0.5) * _F(width)
+                and abs(my - cy) < _F(1.3) * _F(0.5) * _F(height)):
+            # culled by its centre (behind the near plane or outside the widened frustum): on a long
+            # drive most of the map, whose screen covariance nothing reads, so it is left at zero
+            cov[i, 0] = cov[i, 1] = cov[i, 2] = _F(0.0)
+            rect[i, 0] = rect[i, 1] = rect[i, 2] = rect[i, 3] = 0
+            radius_px[i] = 0
+            tile_id[i] = -1
+            continue
         tx = min(max(px / zs, -lim_x), lim_x) * zs
         ty = min(max(py / zs, -lim_y), lim_y) * zs
         j00, j02 = fx / zs, -fx * tx / (zs * zs)
@@ -620,17 +642,12 @@ def _project_fwd(means, log_scales, quats, rc, tc, cam, width, height, near_m, t
         a = u00 * u00 + u01 * u01 + u02 * u02 + _F(0.3)
         b = u00 * u10 + u01 * u11 + u02 * u12
         c = u10 * u10 + u11 * u11 + u12 * u12 + _F(0.3)
-        mx = fx * px / zs + cx
-        my = fy * py / zs + cy
-        m2[i, 0], m2[i, 1] = mx, my
         cov[i, 0], cov[i, 1], cov[i, 2] = a, b, c
-        z_out[i] = pz
         det = a * c - b * b
         mid = _F(0.5) * (a + c)
         lam = mid + np.sqrt(max(mid * mid - det, _F(0.1)))
         radius = np.ceil(_F(3.0) * np.sqrt(lam))
-        front = (pz > near_m) and (det > _F(0.0)) and abs(mx - cx) < _F(1.3) * _F(0.5) * _F(width) \
-            and abs(my - cy) < _F(1.3) * _F(0.5) * _F(height)
+        front = det > _F(0.0)  # and the centre tests above
         x0 = int(min(max(np.floor((mx - radius) / _F(TILE)), _F(0.0)), _F(tiles_x)))
         x1 = int(min(max(np.floor((mx + radius) / _F(TILE)) + _F(1.0), _F(0.0)), _F(tiles_x)))
         y0 = int(min(max(np.floor((my - radius) / _F(TILE)), _F(0.0)), _F(tiles_y)))

@@ -108,6 +108,7 @@ def test_empty_view_and_gaussians_behind_camera():
         assert got.alpha.abs().max() == 0 and got.color.abs().max() == 0
         assert_same_images(ref, got)
         assert (got.tile_id == -1).all() and (got.radius_px == 0).all()
+        assert (got.cov2d == 0).all() and (ref.cov2d == 0).all()  # culled by the centre: not computed
     # nothing in view: like the torch backend, the images carry no gradient (tracking reads that as lost)
     leaves = [t.clone().requires_grad_(True) for t in behind]
     for backend in ("torch", "fused"):
