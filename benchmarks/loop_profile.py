@@ -206,6 +206,12 @@ def profile(prof: Profile, overrides: list[str]) -> str:
     head = (f"status={res.status} frames={m.get('num_frames')} fps={m.get('fps')} wall_s={wall:.1f} "
             f"ate_rmse_m={m.get('ate_rmse_m')} psnr_db={m.get('psnr_db')} "
             f"gaussians_final={m.get('gaussians_final')}")
+    import numba
+
+    try:
+        head += f" numba_layer={numba.threading_layer()}"
+    except ValueError:  # no parallel kernel ran (the torch backend)
+        pass
     return head + "\n" + prof.tables()
 
 

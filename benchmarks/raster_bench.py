@@ -26,6 +26,7 @@ import argparse
 import contextlib
 import hashlib
 import importlib.util
+import os
 import subprocess
 import sys
 import time
@@ -71,7 +72,13 @@ def old_kernels(rev: str):
     spec = importlib.util.spec_from_file_location(path.stem, path)
     mod = importlib.util.module_from_spec(spec)
     sys.modules[path.stem] = mod
+    layer = os.environ.get("NUMBA_THREADING_LAYER")
     spec.loader.exec_module(mod)
+    if layer is None:  # revisions before d99440b pinned numba's layer at import: both are timed under today's
+        os.environ.pop("NUMBA_THREADING_LAYER", None)
+    if not hasattr(mod, "in_view"):  # today's raster.py asks the kernels which Gaussians are in view
+        from bench.slam.raster_fused import in_view
+        mod.in_view = in_view
     return mod
 
 
@@ -170,6 +177,10 @@ def main() -> None:
                 if be.startswith("fused@") and "fused" in res:
                     line += f" {(f + b) / sum(res['fused'][:2]):>6.2f}"
                 print(line, flush=True)
+    if "fused" in backends:
+        import numba
+
+        print(f"numba threading layer: {numba.threading_layer()}")
 
 
 if __name__ == "__main__":

@@ -12,10 +12,15 @@ Design choices, and why:
   only the pixels of its exact 1/255 bounding box (the ellipse where ``o exp(-d^T S^-1 d / 2)``
   reaches 1/255), so the cost is the sum of box areas, not pixels x list length. Per-pixel
   compositing order is still front to back because the list is depth-sorted.
-- Vectorised pixels: a Gaussian updates its box 8 pixels (one AVX2 register) at a time, with
-  masks instead of branches, so a pixel outside the ellipse costs a lane rather than a
-  mispredicted branch. How the loops are written so that LLVM vectorises them is said where the
-  tile state is laid out (``S_X``); check it in the assembly (ymm registers) after a change.
+- Vectorised pixels: a Gaussian updates its box 8 or 16 pixels (one AVX2 or AVX-512 register, as
+  LLVM picks for the host) at a time, with masks instead of branches, so a pixel outside the
+  ellipse costs a lane rather than a mispredicted branch. How the loops are written so that LLVM
+  vectorises them is said where the tile state is laid out (``S_X``); check it in the assembly
+  (ymm or zmm registers) after a change.
+- Work per Gaussian in view: the projection runs over the whole map, but a Gaussian culled by its
+  centre costs a few operations there, and everything after it (``raster._render_fused``) runs on
+  the Gaussians with a tile. The backward walks a tile's list only down from the last contributor
+  of a pixel that a gradient reaches (tracking masks most of the sky and unmapped street).
 - Determinism: tiles run in parallel but each writes only its own pixels and its own slice of the
   pair list. Per-Gaussian sums (gradients, pruning statistics) are first written per pair, then
   reduced over pairs in list order by one sequential loop. The result does not depend on the
@@ -136,8 +141,8 @@ def _depth_order(z, rect):  # pragma: no cover - compiled
 
 
 # The compositing kernels are written so that LLVM vectorises their pixel loops (8 float32 lanes of
-# AVX2); breaking one of these rules gives scalar code and still passes every value test
-# (tests/slam/test_raster_fused.py reads the assembly):
+# AVX2, or 16 of AVX-512 where the host runs it at full width); breaking one of these rules gives
+# scalar code and still passes every value test (tests/slam/test_raster_fused.py reads the assembly):
 # - a tile's per-pixel state is one flat float32 buffer allocated inside the kernel, each quantity
 #   at a fixed offset (structure of arrays): one base pointer with constant distances leaves LLVM
 #   no aliasing to check at run time (separate arrays, or a per-lane accumulator indexed apart from
