@@ -273,3 +273,40 @@ def test_pixel_loops_compile_to_vector_code():
         # run it at full width, e.g. Zen 5)
         packed = re.findall(r"\bv\w+ps\s[^\n]*%[yz]mm", asm)
         assert len(packed) > 60, f"{span.__name__}: {len(packed)} packed AVX2/AVX-512 instructions"
+
+
+_RENDER_TO = """
+import sys, torch
+from bench.slam.raster import rasterize
+from bench.slam.se3 import se3_exp
+g = torch.Generator().manual_seed(0)
+n = 2000
+means = torch.cat([torch.rand(n, 2, generator=g) * 8 - 4, torch.rand(n, 1, generator=g) * 10 + 3], 1)
+params = [t.requires_grad_(True) for t in (means, torch.rand(n, 3, generator=g) - 3.5, torch.randn(n, 4, generator=g),
+          torch.rand(n, generator=g), torch.rand(n, 3, generator=g))]
+xi = torch.zeros(6, requires_grad=True)
+K = torch.tensor([[60.0, 0, 48], [0, 60.0, 32], [0, 0, 1]])
+out = rasterize(*params, se3_exp(xi) @ torch.eye(4), K, 96, 64, backend="fused", stats=True)
+(out.color.square().mean() + out.depth.mean()).backward()
+torch.save([out.color, out.depth, out.coverage, xi.grad] + [p.grad for p in params], sys.argv[1])
+"""
+
+
+@pytest.mark.slow
+def test_a_process_that_compiles_the_kernels_repeats_one_that_loads_them(tmp_path):
+    """Kernels compiled in the process that runs them rounded otherwise than the same kernels loaded
+    from numba's cache: the first run after an install did not repeat. Both processes here start
+    from an empty cache folder's state as a user's first and second run do."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    root = Path(__file__).resolve().parents[2]
+    for name in ("first", "second"):
+        subprocess.run([sys.executable, "-c", _RENDER_TO, str(tmp_path / f"{name}.pt")], env=env, cwd=root, check=True)
+    first, second = torch.load(tmp_path / "first.pt"), torch.load(tmp_path / "second.pt")
+    assert first[0].abs().max() > 0 and first[3].abs().max() > 0
+    for a, b in zip(first, second, strict=True):
+        assert torch.equal(a, b)
