@@ -75,7 +75,10 @@ def old_kernels(rev: str):
     layer = os.environ.get("NUMBA_THREADING_LAYER")
     spec.loader.exec_module(mod)
     if layer is None:  # revisions before d99440b pinned numba's layer at import: both are timed under today's
+        import numba
+
         os.environ.pop("NUMBA_THREADING_LAYER", None)
+        numba.config.THREADING_LAYER = "default"
     if not hasattr(mod, "in_view"):  # today's raster.py asks the kernels which Gaussians are in view
         from bench.slam.raster_fused import in_view
         mod.in_view = in_view

@@ -912,20 +912,26 @@ def _load_from_cache() -> None:
 def compile_kernels() -> None:
     """Call every kernel once on a small view (forward with and without statistics; backward to the
     Gaussians and to the pose), with the argument types of a real run, so that numba compiles and
-    caches each of them."""
-    from bench.slam.raster import rasterize
-
-    n = 64
+    caches each of them. The same calls as ``raster._render_fused`` makes, without importing it."""
+    n, size, tiles = 64, 64, 4
     g = torch.Generator().manual_seed(0)
     means = torch.cat([torch.rand(n, 2, generator=g) - 0.5, torch.full((n, 1), 3.0)], 1)
     params = [means, torch.full((n, 3), -3.0), torch.tensor([1.0, 0, 0, 0]).repeat(n, 1), torch.full((n,), 0.8),
               torch.rand(n, 3, generator=g)]
     K = torch.tensor([[40.0, 0, 32], [0, 40.0, 32], [0, 0, 1]])
     for stats, gaussians in ((False, True), (True, False)):
-        leaves = [p.clone().requires_grad_(gaussians) for p in params]
+        m, ls, q, op, col = (p.clone().requires_grad_(gaussians) for p in params)
         w2c = torch.eye(4, requires_grad=True)
-        out = rasterize(*leaves, w2c, K, 64, 64, stats=stats, backend="fused")
-        (out.color.sum() + out.depth.sum()).backward()
+        m2, cov, z, rect, _, _ = project(m, ls, q, w2c, K, size, size, 0.2, tiles, tiles)
+        vis = in_view(rect)
+        tile_start, gid = bin_pairs(rect.index_select(0, vis), z.index_select(0, vis), tiles * tiles, tiles)
+        a, b, c = cov.index_select(0, vis).unbind(-1)
+        det = a * c - b * b
+        conic = torch.stack([c / det, -b / det, a / det], -1)  # [V, 3]
+        feat = torch.cat([col.index_select(0, vis), z.index_select(0, vis)[:, None]], 1)  # [V, 4]
+        acc, t_final, *_ = composite(m2.index_select(0, vis), conic, op.index_select(0, vis), feat, gid, tile_start,
+                                     size, size, tiles, stats)
+        (acc.sum() + t_final.sum()).backward()
 
 
 # below this many work items a kernel runs on one thread: a parallel region ends at a barrier, and
