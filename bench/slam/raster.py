@@ -249,10 +249,7 @@ def _render_fused(ff: _FusedFront, opacities, colors, depth_far_m, bg, width, he
     z_v = ff.z.index_select(0, vis)  # [V]
     tile_start, gid = raster_fused.bin_pairs(ff.rect.index_select(0, vis), z_v, n_tiles, ff.tiles_x)
     if gid.numel():
-        a, b, c = ff.cov.index_select(0, vis).unbind(-1)
-        det = a * c - b * b
-        det_safe = torch.where(det > 0, det, torch.ones_like(det))
-        conic = torch.stack([c / det_safe, -b / det_safe, a / det_safe], -1)  # [V, 3] inverse covariance
+        conic = raster_fused.conic(ff.cov.index_select(0, vis))  # [V, 3]
         feat = torch.cat([colors.index_select(0, vis), _paint_depth(z_v, depth_far_m)[:, None]], 1).float()  # [V, 4]
         acc, t_final, cov_v, hits_v, maxw_v = raster_fused.composite(
             ff.means2d.index_select(0, vis).float(), conic.float(), opacities.index_select(0, vis).float(), feat,

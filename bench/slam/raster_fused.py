@@ -867,6 +867,15 @@ class _Project(torch.autograd.Function):
         return g_means, g_ls, g_q, g_w2c, None, None, None, None, None, None
 
 
+def conic(cov: torch.Tensor) -> torch.Tensor:
+    """[N, 3] (a, b, c) of the inverse of each screen covariance cov [N, 3] (a, b, c); differentiable.
+    A non-positive determinant (such a Gaussian is culled) divides by 1 instead."""
+    a, b, c = cov.unbind(-1)
+    det = a * c - b * b
+    det_safe = torch.where(det > 0, det, torch.ones_like(det))
+    return torch.stack([c / det_safe, -b / det_safe, a / det_safe], -1)
+
+
 def project(
     means: torch.Tensor, log_scales: torch.Tensor, quats: torch.Tensor, w2c: torch.Tensor, K: torch.Tensor,
     width: int, height: int, near_m: float, tiles_x: int, tiles_y: int,
@@ -925,12 +934,9 @@ def compile_kernels() -> None:
         m2, cov, z, rect, _, _ = project(m, ls, q, w2c, K, size, size, 0.2, tiles, tiles)
         vis = in_view(rect)
         tile_start, gid = bin_pairs(rect.index_select(0, vis), z.index_select(0, vis), tiles * tiles, tiles)
-        a, b, c = cov.index_select(0, vis).unbind(-1)
-        det = a * c - b * b
-        conic = torch.stack([c / det, -b / det, a / det], -1)  # [V, 3]
         feat = torch.cat([col.index_select(0, vis), z.index_select(0, vis)[:, None]], 1)  # [V, 4]
-        acc, t_final, *_ = composite(m2.index_select(0, vis), conic, op.index_select(0, vis), feat, gid, tile_start,
-                                     size, size, tiles, stats)
+        acc, t_final, *_ = composite(m2.index_select(0, vis), conic(cov.index_select(0, vis)), op.index_select(0, vis),
+                                     feat, gid, tile_start, size, size, tiles, stats)
         (acc.sum() + t_final.sum()).backward()
 
 
