@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import torch
 
 from bench.errors import ConfigError
+from bench.slam.conic import conic
 from bench.slam.se3 import quat_to_rotmat
 
 TILE_PX = 16
@@ -124,8 +125,7 @@ def _front(means, log_scales, quats, w2c, K, width, height, near_m) -> _Front:
     means2d, cov2d, z = project(means, cov3d, w2c, K, width, height)
     a, b, c = cov2d[:, 0, 0], cov2d[:, 0, 1], cov2d[:, 1, 1]
     det = a * c - b * b
-    det_safe = torch.where(det > 0, det, torch.ones_like(det))
-    conic = torch.stack([c / det_safe, -b / det_safe, a / det_safe], -1)  # [N, 3] inverse covariance
+    inv = conic(a, b, c)  # [N, 3] inverse covariance
 
     with torch.no_grad():
         mid = 0.5 * (a + c)
@@ -157,7 +157,7 @@ def _front(means, log_scales, quats, w2c, K, width, height, near_m) -> _Front:
             torch.full_like(counts, -1),
         )
     cov2d = torch.where(centre[:, None, None], cov2d, torch.zeros_like(cov2d))  # as the fused backend returns it
-    return _Front(means2d, cov2d, z, conic, rect, counts, radius_px, tile_id, tiles_x, tiles_y)
+    return _Front(means2d, cov2d, z, inv, rect, counts, radius_px, tile_id, tiles_x, tiles_y)
 
 
 def _front_fused(means, log_scales, quats, w2c, K, width, height, near_m) -> _FusedFront:
@@ -248,19 +248,19 @@ def _render_fused(ff: _FusedFront, opacities, colors, depth_far_m, bg, width, he
     vis = ff.vis
     z_v = ff.z.index_select(0, vis)  # [V]
     tile_start, gid = raster_fused.bin_pairs(ff.rect.index_select(0, vis), z_v, n_tiles, ff.tiles_x)
+    coverage = hit_count = max_weight = None
+    if stats:  # [N]: zero for the Gaussians out of view
+        coverage, hit_count, max_weight = torch.zeros(n), torch.zeros(n, dtype=torch.int64), torch.zeros(n)
     if gid.numel():
-        conic = raster_fused.conic(ff.cov.index_select(0, vis))  # [V, 3]
+        inv = conic(*ff.cov.index_select(0, vis).unbind(-1))  # [V, 3]
         feat = torch.cat([colors.index_select(0, vis), _paint_depth(z_v, depth_far_m)[:, None]], 1).float()  # [V, 4]
         acc, t_final, cov_v, hits_v, maxw_v = raster_fused.composite(
-            ff.means2d.index_select(0, vis).float(), conic.float(), opacities.index_select(0, vis).float(), feat,
+            ff.means2d.index_select(0, vis).float(), inv.float(), opacities.index_select(0, vis).float(), feat,
             gid, tile_start, width, height, ff.tiles_x, stats)
-        coverage = hit_count = max_weight = None
-        if stats:  # [N]: zero for the Gaussians out of view
-            coverage, hit_count, max_weight = torch.zeros(n), torch.zeros(n, dtype=torch.int64), torch.zeros(n)
+        if stats:
             coverage[vis], hit_count[vis], max_weight[vis] = cov_v, hits_v, maxw_v
     else:  # nothing in view: constant images that carry no gradient, as the torch backend returns
         acc, t_final = torch.zeros(width * height, 4), torch.ones(width * height)
-        coverage, hit_count, max_weight = torch.zeros(n), torch.zeros(n, dtype=torch.int64), torch.zeros(n)
     dtype = colors.dtype
     return RasterOutput(
         color=(acc[:, :3] + t_final[:, None] * bg).to(dtype).reshape(height, width, 3),

@@ -49,6 +49,8 @@ from llvmlite import ir as llvm_ir
 from numba import njit, prange, types
 from numba.extending import intrinsic
 
+from bench.slam.conic import conic
+
 # numba's threading layer: OpenMP first, the work queue where no OpenMP runtime is installed. A
 # work-queue worker wakes and parks through the OS on every kernel and then shares the cores with
 # torch's spinning OpenMP pool, which slowed the whole SLAM loop on a 2-core machine (measured with
@@ -823,6 +825,7 @@ class _Project(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, means, log_scales, quats, w2c, cam, width, height, near_m, tiles_x, tiles_y):  # type: ignore[override]
+        # a Gaussian's projection costs a fraction of a pair's compositing, so it goes parallel later
         _threads(int(means.shape[0]) // 2)
         mw, ls, q = (t.detach().float().contiguous() for t in (means, log_scales, quats))
         rc = w2c.detach()[:3, :3].float().contiguous()
@@ -865,15 +868,6 @@ class _Project(torch.autograd.Function):
         if not gaussians:
             g_means = g_ls = g_q = None
         return g_means, g_ls, g_q, g_w2c, None, None, None, None, None, None
-
-
-def conic(cov: torch.Tensor) -> torch.Tensor:
-    """[N, 3] (a, b, c) of the inverse of each screen covariance cov [N, 3] (a, b, c); differentiable.
-    A non-positive determinant (such a Gaussian is culled) divides by 1 instead."""
-    a, b, c = cov.unbind(-1)
-    det = a * c - b * b
-    det_safe = torch.where(det > 0, det, torch.ones_like(det))
-    return torch.stack([c / det_safe, -b / det_safe, a / det_safe], -1)
 
 
 def project(
@@ -935,8 +929,9 @@ def compile_kernels() -> None:
         vis = in_view(rect)
         tile_start, gid = bin_pairs(rect.index_select(0, vis), z.index_select(0, vis), tiles * tiles, tiles)
         feat = torch.cat([col.index_select(0, vis), z.index_select(0, vis)[:, None]], 1)  # [V, 4]
-        acc, t_final, *_ = composite(m2.index_select(0, vis), conic(cov.index_select(0, vis)), op.index_select(0, vis),
-                                     feat, gid, tile_start, size, size, tiles, stats)
+        inv = conic(*cov.index_select(0, vis).unbind(-1))  # [V, 3]
+        acc, t_final, *_ = composite(m2.index_select(0, vis), inv, op.index_select(0, vis), feat, gid, tile_start,
+                                     size, size, tiles, stats)
         (acc.sum() + t_final.sum()).backward()
 
 
