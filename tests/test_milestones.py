@@ -91,6 +91,7 @@ def test_report_of_milestone_runs_has_the_scale_section_and_redraws(pair: tuple[
     assert {"milestones.csv", "scale.md"} <= names
     assert any(n.startswith("memory_vs_distance_") for n in names)
     assert any(n.startswith("accuracy_vs_distance_") for n in names)
+    assert any(n.startswith("pose_error_vs_distance_") for n in names)  # from the trajectories, not redrawn
     text = (out / "scale.md").read_text()
     assert "Gaussians / 100 m" in text and "Ours (w/ Tile Budget)" in text
     assert "No baseline runs at the milestones" in text  # pocket only: no answer is made up

@@ -229,6 +229,30 @@ def aligned_positions(est: Trajectory, gt: Trajectory | None, align: str = "se3"
     return scale * est.positions_m @ rot.T + trans
 
 
+def drift_components(est: Trajectory, gt: Trajectory, max_diff_s: float = MAX_DIFF_S) -> dict[str, np.ndarray]:
+    """Per associated frame, the unaligned position error split into the part within the plane of the
+    ground-truth path and the part off it, with the metres driven by then.
+
+    The ATE's alignment hides a drift it can rotate away: a camera that slowly pitches climbs out of
+    a flat drive, and an SE(3) fit tilts the whole path back. Unaligned, with the first frame
+    anchored as the system anchors it, the off-plane part is that climb. The plane is the
+    ground-truth path's least-variance axis (for a drive, the vertical); on a perfectly straight path
+    that axis is arbitrary across the line, and the split says little.
+    """
+    traj_ref, traj_est = _associate_align(est, gt, "none", max_diff_s)
+    ref, got = traj_ref.positions_xyz, traj_est.positions_xyz  # [N, 3] each
+    centred = ref - ref.mean(axis=0)
+    normal = np.linalg.svd(centred, full_matrices=False)[2][-1]  # [3] least-variance axis of the path
+    err = got - ref  # [N, 3]
+    off = err @ normal  # [N]
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(ref, axis=0), axis=1))])  # [N]
+    return {
+        "path_length_m": along,
+        "in_plane_err_m": np.linalg.norm(err - off[:, None] * normal, axis=1),
+        "off_plane_err_m": np.abs(off),
+    }
+
+
 def ate(est: Trajectory, gt: Trajectory, align: str = "se3", max_diff_s: float = MAX_DIFF_S) -> dict:
     """Absolute trajectory error (translation part) after ``se3``/``sim3``/``none`` alignment.
 

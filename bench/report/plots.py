@@ -26,7 +26,7 @@ from matplotlib.ticker import FormatStrFormatter, NullFormatter
 
 from bench import schema, viz
 from bench.errors import MetricError, ReportError
-from bench.metrics.trajectory import MAX_DIFF_S, Trajectory, aligned_positions, read_tum
+from bench.metrics.trajectory import MAX_DIFF_S, Trajectory, aligned_positions, drift_components, read_tum
 from bench.report.collect import is_missing, read_run_table
 from bench.report.names import dataset_name, file_token, method_name, sequence_sort_key
 from bench.report.style import (
@@ -557,6 +557,36 @@ def plot_milestones(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn:
                              rows, x_col="path_length_m", cache=cache)
 
 
+def read_drift(run_dir: Path, warn: Warn) -> pd.DataFrame | None:
+    """One run's per-frame unaligned error, in and off the plane of its ground-truth path
+    (``drift_components``), or None without both trajectories."""
+    est = read_trajectory(run_dir / "traj_est.txt", warn)
+    gt = read_trajectory(run_dir / "traj_gt.txt", warn)
+    if est is None or gt is None:
+        return None
+    try:
+        return pd.DataFrame(drift_components(est, gt))
+    except MetricError as exc:
+        warn(f"skipped {run_dir} in the drift figure: {exc}")
+        return None
+
+
+def plot_drift(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn) -> Path | None:
+    """The pose error the ATE's alignment hides, against the distance driven: a slow pitch lifts a
+    drive off its plane, which the SE(3) fit tilts back, and a loss shows as the error running away."""
+    one = runs[runs["seq"] == seq]
+    cache: dict[str, pd.DataFrame | None] = {str(p): read_drift(Path(p), warn) for p in one["path"]}
+    if not any(v is not None and len(v) for v in cache.values()):
+        return None
+    rows: tuple[tuple[str, KfValue], ...] = (
+        ("position error in the drive's plane [m]\n(unaligned, from the first frame)",
+         lambda _r, d: d["in_plane_err_m"]),
+        ("error off the drive's plane [m]\n(height, for a flat drive)", lambda _r, d: d["off_plane_err_m"]),
+    )
+    return plot_per_keyframe(runs, dataset, seq, out, warn, "pose_error_vs_distance", "Unaligned pose error against "
+                             "distance", rows, x_col="path_length_m", cache=cache)
+
+
 def _dataset_average(runs: pd.DataFrame, metric: str) -> tuple[float | None, int]:
     """Mean over sequences of the seed means of ok runs (the tables' Avg), and how many
     sequences it covers."""
@@ -755,6 +785,7 @@ def _make_plots(runs: pd.DataFrame, out: Path, warn: Warn) -> list[Path]:
             if _output["long_drives"]:  # the scale study's figures (bench/report/scale.py)
                 written.append(plot_per_keyframe(ds, dataset, seq, out, warn, *MEMORY_VS_DISTANCE, x_col="distance_m"))
                 written.append(plot_milestones(ds, dataset, seq, out, warn))
+                written.append(plot_drift(ds, dataset, seq, out, warn))
             written.append(plot_density(ds, dataset, seq, out, warn))
             written.append(plot_trajectory(ds, dataset, seq, out, warn))
             written += plot_pruned(ds, dataset, seq, out, warn)
