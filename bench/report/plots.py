@@ -202,6 +202,12 @@ PER_KEYFRAME: tuple[tuple[str, str, tuple[tuple[str, KfValue], ...]], ...] = (
 )  # fmt: skip
 
 
+def _markevery(points: int) -> int | None:
+    """A marker on every point up to a few dozen; beyond, about 30 per line, so a 400-frame drive's
+    markers still tell the strategies apart instead of merging into a thick line."""
+    return None if points <= 60 else max(1, points // 30)
+
+
 def plot_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn, stem: str, title: str,
                       rows: tuple[tuple[str, KfValue], ...], x_col: str = "frame",
                       cache: dict[str, pd.DataFrame | None] | None = None) -> Path | None:  # fmt: skip
@@ -231,7 +237,7 @@ def plot_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Path, war
                 if got is None:
                     continue
                 x, mean, std, n, lost = got
-                band(axes[row, col], x, mean, std, colour, ls=ls, marker=marker)
+                band(axes[row, col], x, mean, std, colour, ls=ls, marker=marker, markevery=_markevery(len(x)))
                 drawn += 1
                 most_seeds = max(most_seeds, n)
                 any_lost = any_lost or lost
