@@ -101,7 +101,9 @@ def ratio_style(variant: Variant, panel: Panel) -> tuple[str | tuple, str]:
     the preset's usual ratio keeps solid and round, so one run looks the same in its preset's panel and
     in the ratio panel, and the others take the next styles in ratio order."""
     same = sorted(v.keep_ratio for v in panel.variants if v.strategy == variant.strategy and v.keep_ratio is not None)
-    if len(same) < 2 or variant.keep_ratio is None:
+    if variant.keep_ratio is None:  # an absolute target: the style after the strategy's ratios, if it has any
+        return RATIO_STYLES[len(same) % len(RATIO_STYLES)]
+    if len(same) < 2:
         return RATIO_STYLES[0]
     if panel.usual_ratio in same:
         same.remove(panel.usual_ratio)
@@ -113,7 +115,7 @@ def series_label(variant: Variant, panel: Panel | None = None) -> str:
     """A legend entry: the method's name, and its keep ratio where the panel shows several."""
     label = method_name(variant.strategy)
     if panel is not None and sum(v.strategy == variant.strategy for v in panel.variants) > 1:
-        label += f", keep {variant.keep_ratio:g}"
+        label += ", absolute target" if variant.keep_ratio is None else f", keep {variant.keep_ratio:g}"
     return label
 
 

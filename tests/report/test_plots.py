@@ -80,6 +80,22 @@ def test_a_run_looks_the_same_in_its_preset_panel_and_in_the_ratio_panel() -> No
     assert len(set(others)) == 3 and RATIO_STYLES[0] not in others
 
 
+def test_an_absolute_target_beside_its_ratio_runs_is_labelled_and_drawn_apart() -> None:
+    """The scale study runs pocket at its keep ratio and at an absolute target (no keep ratio)."""
+    from bench.report.style import series_label
+
+    found = [Variant("none", None, "none", "default"), Variant("pocket", 0.4, "pocket", "default"),
+             Variant("pocket", None, "pocket", "default")]  # fmt: skip
+    panels = panel_groups(found)
+    together = [p for p in panels if sum(v.strategy == "pocket" for v in p.variants) == 2]
+    assert together
+    ratio, absolute = (next(v for v in together[0].variants if v.strategy == "pocket" and (v.keep_ratio is None) == a)
+                       for a in (False, True))  # fmt: skip
+    assert series_label(absolute, together[0]).endswith("absolute target")
+    assert series_label(ratio, together[0]).endswith("keep 0.4")
+    assert ratio_style(ratio, together[0]) != ratio_style(absolute, together[0])
+
+
 def test_a_strategy_has_one_colour_whatever_else_ran() -> None:
     assert strategy_colour("pocket") == strategy_colour("pocket", ["none", "my_prune"]) == COLOURS["pocket"]
     assert len(set(COLOURS.values())) == len(COLOURS)
