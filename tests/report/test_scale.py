@@ -72,3 +72,25 @@ def test_each_preset_is_judged_against_its_own_baseline() -> None:
     assert "`slam=splatam`: LSG-SLAM baseline: 65.0 MiB" in text and "Ours (w/ Tile Budget): 50.0 MiB" in text
     assert "`slam=default`: LSG-SLAM baseline: 70.0 MiB (LSG-SLAM baseline [default]); " \
            "Ours (w/ Tile Budget): none" in text
+
+
+def test_a_strategy_better_than_its_baseline_keeps_accuracy_and_a_worse_one_does_not() -> None:
+    """Lower ATE beyond the noise with PSNR within it: 'better (ATE)', and its peak answers the question;
+    lower PSNR beyond the noise: 'no', whatever the ATE."""
+    rows, by_path = [], {}
+    values = {"none": (1.60, 17.90, 72.0), "opacity": (0.70, 17.95, 55.0), "area": (0.70, 17.40, 54.0)}
+    for strategy, (ate, psnr, peak) in values.items():
+        for seed, jitter in ((0, -0.02), (1, 0.02)):
+            path = f"{strategy}_{seed}"
+            rows.append({"path": path, "status": "ok", "strategy": strategy, "slam_preset": "default", "seed": seed,
+                         "keep_ratio": None if strategy == "none" else 0.4})
+            by_path[path] = pd.DataFrame({"frames": [400], "ate_rmse_m": [ate + jitter],
+                                          "psnr_db": [psnr + (0.1 if strategy == "opacity" else 1) * jitter],
+                                          "peak_mem_mib": [peak + jitter]})
+    one = pd.DataFrame(rows)
+    text = "\n".join(_answer(one, variants(one), by_path, "none"))
+    verdicts = {line.split("|")[1].strip(): line.split("|")[6].strip() for line in text.splitlines()
+                if line.startswith("| ") and "---" not in line and "method" not in line}
+    assert verdicts["LightGaussian"] == "better (ATE)"
+    assert verdicts["Ours (w/o Tile Budget)"] == "no"
+    assert "LightGaussian: 55.0 MiB" in text and "Ours (w/o Tile Budget): none" in text
