@@ -17,6 +17,7 @@ import pytest
 from bench import cli
 from bench.config import to_run_config
 from bench.keys import run_keys
+from bench.report.names import synthetic_drive
 from bench.report.settings import SETTING_KEYS, _lookup
 from bench.study import load
 from bench.typed import plain
@@ -56,6 +57,14 @@ def _same(expected: object, found: object) -> bool:
     return str(expected) == str(found)
 
 
+def _run_key(path: str | Path) -> tuple[str, ...]:
+    """A run dir by its parts below ``multirun/`` (sweep dir, run dir). An override value with a slash
+    (``dataset.route_file=datasets/routes/kitti_06.txt``) nests the run dir one level deeper, so the
+    last two parts alone would name several runs alike."""
+    parts = Path(path).parts
+    return parts[parts.index("multirun") + 1:] if "multirun" in parts else parts[-2:]
+
+
 def _recorded(name: str) -> tuple[list, dict[tuple[str, str], dict]]:
     """The study's runs, and its report's runs.csv rows by run dir (sweep dir name, run dir name)."""
     study, jobs = load(name)
@@ -63,13 +72,13 @@ def _recorded(name: str) -> tuple[list, dict[tuple[str, str], dict]]:
         pytest.skip(f"study {name} is planned: no report folder yet")
     runs = pd.read_csv(REPO / study.report["out"] / "runs.csv", dtype=str, keep_default_na=False)
     rows = [{k: (v if v != "" else None) for k, v in row.items()} for row in runs.to_dict("records")]
-    return jobs, {tuple(Path(row["path"]).parts[-2:]): row for row in rows}
+    return jobs, {_run_key(row["path"]): row for row in rows}
 
 
 @pytest.mark.parametrize("name", STUDIES)
 def test_study_lists_exactly_the_run_dirs_of_its_report(name, at_repo):
     jobs, recorded = _recorded(name)
-    assert sorted(tuple(job.run_dir.parts[-2:]) for job in jobs) == sorted(recorded)  # none more, none less
+    assert sorted(_run_key(job.run_dir) for job in jobs) == sorted(recorded)  # none more, none less
 
 
 @pytest.mark.slow
@@ -78,9 +87,12 @@ def test_study_runs_have_the_recorded_keys_and_settings(name, at_repo):
     """Each run as the study composes it today: the strategy, preset, seed and settings its report recorded."""
     jobs, recorded = _recorded(name)
     for job in jobs:
-        row = recorded[tuple(job.run_dir.parts[-2:])]
+        row = recorded[_run_key(job.run_dir)]
         cfg = cli.compose(list(job.overrides))
         keys, tree = run_keys(to_run_config(cfg)), plain(cfg)
+        if keys["dataset"] == "synthetic":  # the report names a synthetic drive by its route too
+            route, route_file = _lookup(tree, "dataset.route"), _lookup(tree, "dataset.route_file")
+            keys["seq"] = synthetic_drive(keys["seq"], route, route_file)
         for key in KEYS:
             if key == "keep_ratio" and (keys["strategy"] == "none" or keys["keep_ratio"] is None):
                 continue  # unused without pruning or with an absolute target (older records wrote the ratio)
