@@ -222,8 +222,9 @@ def _verdict(ate: list[float], base_ate: list[float], psnr: list[float], base_ps
 
 
 def _answer(one: pd.DataFrame, found: list[Variant], by_path: dict[str, pd.DataFrame], baseline: str) -> list[str]:
-    """At the longest milestone every variant reached: which keep ATE and PSNR within seed noise of their
-    preset's baseline (Welch, p >= 0.05), and per preset the smallest peak of each strategy among those."""
+    """At the longest milestone every variant reached: which keep their preset's baseline accuracy (ATE and
+    PSNR within seed noise by Welch, p >= 0.05, or better beyond it), and per preset the smallest peak of each
+    strategy among those."""
     frames = _milestone_frames(one, by_path)
     rows = _variant_rows(one, found)
     bases = {v.slam_preset: vr for v, vr in rows if v.strategy == baseline}
@@ -235,7 +236,7 @@ def _answer(one: pd.DataFrame, found: list[Variant], by_path: dict[str, pd.DataF
              "higher PSNR) and within it on the other, so accuracy is kept too; 'no' = worse beyond the noise on "
              "either; peak = the headline peak over the drive.", "",
              "| method | seeds ok | ATE m | PSNR dB | peak MiB | against baseline |", "|---|---|---|---|---|---|"]
-    best: dict[str, dict[str, tuple[float, str]]] = {}  # preset -> strategy -> (smallest peak within noise, label)
+    best: dict[str, dict[str, tuple[float, str]]] = {}  # preset -> strategy -> (smallest peak keeping accuracy, label)
     for variant, vr in rows:
         ate, psnr = _at(by_path, vr, last, "ate_rmse_m"), _at(by_path, vr, last, "psnr_db")
         peak = _at(by_path, vr, last, "peak_mem_mib")
