@@ -229,6 +229,11 @@ def aligned_positions(est: Trajectory, gt: Trajectory | None, align: str = "se3"
     return scale * est.positions_m @ rot.T + trans
 
 
+def distance_along(positions_m: np.ndarray) -> np.ndarray:
+    """[N] metres driven up to each of the positions [N, 3], 0 at the first."""
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(positions_m, axis=0), axis=1))])
+
+
 def drift_components(est: Trajectory, gt: Trajectory, max_diff_s: float = MAX_DIFF_S) -> dict[str, np.ndarray]:
     """Per associated frame, the unaligned position error split into the part within the plane of the
     ground-truth path and the part off it, with the metres driven by then.
@@ -245,9 +250,8 @@ def drift_components(est: Trajectory, gt: Trajectory, max_diff_s: float = MAX_DI
     normal = np.linalg.svd(centred, full_matrices=False)[2][-1]  # [3] least-variance axis of the path
     err = got - ref  # [N, 3]
     off = err @ normal  # [N]
-    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(ref, axis=0), axis=1))])  # [N]
     return {
-        "path_length_m": along,
+        "path_length_m": distance_along(ref),
         "in_plane_err_m": np.linalg.norm(err - off[:, None] * normal, axis=1),
         "off_plane_err_m": np.abs(off),
     }

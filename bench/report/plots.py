@@ -26,7 +26,14 @@ from matplotlib.ticker import FormatStrFormatter, NullFormatter
 
 from bench import schema, viz
 from bench.errors import MetricError, ReportError
-from bench.metrics.trajectory import MAX_DIFF_S, Trajectory, aligned_positions, drift_components, read_tum
+from bench.metrics.trajectory import (
+    MAX_DIFF_S,
+    Trajectory,
+    aligned_positions,
+    distance_along,
+    drift_components,
+    read_tum,
+)
 from bench.report.collect import is_missing, read_run_table
 from bench.report.names import dataset_name, file_token, method_name, sequence_sort_key
 from bench.report.style import (
@@ -110,7 +117,7 @@ def distance_driven(run_dir: Path, keyframes: pd.DataFrame) -> np.ndarray | None
         xyz = read_tum(path, allow_duplicates=True).positions_m  # [F, 3] m
     except MetricError:
         return None
-    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xyz, axis=0), axis=1))])  # [F] m
+    along = distance_along(xyz)  # [F] m
     pos = keyframes["frame"].to_numpy(dtype=int) - int(keyframes["frame"].iloc[0])
     if pos.min() < 0 or pos.max() >= len(along):
         return None
