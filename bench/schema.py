@@ -82,7 +82,13 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
     Field("n_reseeded_holes", "", "Gaussians this keyframe seeded in pixels the prunes since the previous "
           "keyframe opened (their surface points, from the observed depth, projected into this view)"),
     Field("diag_s", "s", "time spent on the pruning diagnostics above (included in `prune_s`)"),
+    # how well mapping fitted the keyframe it just mapped (bench/slam/system.py:_fit_diagnostics)
+    Field("kf_psnr_db", "dB", "the keyframe's own render right after its mapping, before pruning: PSNR, whole image"),
+    Field("kf_psnr_depth_db", "dB", "... PSNR over the pixels with observed depth (those a map can seed)"),
+    Field("kf_psnr_nodepth_db", "dB", "... PSNR over the pixels without depth (sky, no disparity); null if none"),
+    Field("kf_depth_frac", "", "share of the keyframe's pixels with observed depth"),
 )
+FIT_COLUMNS: tuple[str, ...] = ("kf_psnr_db", "kf_psnr_depth_db", "kf_psnr_nodepth_db", "kf_depth_frac")
 MILESTONE_FIELDS: tuple[Field, ...] = (
     Field("frames", "", "frames tracked when the row was taken (an `eval.at_frames` entry)"),
     Field("path_length_m", "m", "ground-truth path length over those frames"),

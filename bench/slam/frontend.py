@@ -46,8 +46,13 @@ def relative_motion(
     cfg: FlowPnpConfig,
     prior: np.ndarray | None = None,  # [4, 4] previous -> current camera, e.g. constant velocity
     rng: np.random.Generator | None = None,
+    inliers_out: list | None = None,
 ) -> tuple[np.ndarray | None, int]:
     """Transform from the previous camera frame to the current one ([4, 4]), and the inlier count.
+
+    ``inliers_out``, when given, receives the RANSAC inliers of an accepted guess as two arrays: their
+    points in the previous camera's frame [M, 3] (m) and where they were tracked to in the current image
+    [M, 2] (px); the tracking loss can keep them in view (``slam.feature_weight``).
 
     ``prior`` seeds the iterative PnP (RANSAC still picks the inliers). Returns ``(None, n)`` when
     there are too few reliable tracks to trust a guess. ``rng`` shuffles the correspondences
@@ -88,4 +93,7 @@ def relative_motion(
     T = np.eye(4)
     T[:3, :3] = cv2.Rodrigues(rvec)[0]
     T[:3, 3] = tvec[:, 0]
+    if inliers_out is not None:
+        idx = inliers[:, 0]
+        inliers_out.extend([pts[idx], uv[idx]])
     return T, n_in

@@ -26,6 +26,7 @@ from bench.errors import ConfigError, TrackingLost
 from bench.schema import PRUNE_QUARTILE_COLUMNS
 from bench.slam.frontend import FlowPnpConfig, relative_motion, to_gray_u8
 from bench.slam.gaussians import GaussianMap, LearningRates
+from bench.slam.losses import dssim
 from bench.slam.raster import BACKENDS, RasterOutput, rasterize
 from bench.slam.se3 import inverse, se3_exp, so3_log
 from bench.strategy import MappingContext, PruneConfig, PruneContext, Strategy, TrackingContext
@@ -53,7 +54,13 @@ class SlamConfig:
     tracking_lr_final: float = 0.1  # ... exponentially to this fraction over the iterations
     lambda_depth_track: float = 1.0  # paper
     lambda_depth_map: float = 1.5  # paper
+    # mapping's colour term: (1 - w) x L1 + w x D-SSIM, the 3DGS / SplaTAM form (both use 0.2); 0 = L1 alone
+    lambda_ssim_map: float = 0.0
     silhouette_min: float = 0.99  # tracking uses pixels the map explains with confidence
+    # ... and, when > 0, only those whose depth error is within this x the median error of those pixels: an
+    # object moving with the camera (a car ahead) otherwise pulls the pose back along the road (SplaTAM: 10,
+    # ignore_outlier_depth_loss; see _depth_inliers); 0 = off
+    tracking_depth_outlier: float = 0.0
     # which pixels tracking compares: "current" re-selects the confident ones at every iterate;
     # "init" fixes them at the initial pose (which falls short when the initial pose is far off).
     tracking_mask: str = "current"
@@ -63,6 +70,13 @@ class SlamConfig:
     # the README's "Known limits" (the velocity guess alone is lost on longer drives).
     tracking_init: str = "flow_pnp"
     flow_pnp: FlowPnpConfig = field(default_factory=FlowPnpConfig)  # slam.flow_pnp.NAME=VALUE
+    # tracking loss + this x the mean reprojection error (px, L1) of the corners flow + PnP matched (its
+    # RANSAC inliers, 3-D from the previous frame's depth); 0 = off. Why: the depth term of the photometric
+    # loss follows the map's geometry, which stereo depth leaves wrong on foliage and far facades, and on a
+    # straight road it pulls the pose back along the optical axis; the corners hold the scale there. The
+    # released LSG-SLAM code adds a feature-warping term for the same reason (use_warp_loss, weight_warp=10);
+    # this term is ours, in pixels, not theirs.
+    feature_weight: float = 0.0
     depth_loss_max_m: float = 30.0  # far pixels (sky, distant road) only constrain colour
     depth_far_m: float | None = 60.0  # Gaussians beyond this add no depth (see rasterize); None = all do
     depth_normalized: bool = False  # compare depth / silhouette (unbiased where coverage < 1)
@@ -134,6 +148,13 @@ class SlamConfig:
             )
         if self.densify_sigma_px is not None and not self.densify_sigma_px > 0:
             raise ConfigError(f"slam.densify_sigma_px: expected > 0 or null, found {self.densify_sigma_px}")
+        if not (self.tracking_depth_outlier == 0 or self.tracking_depth_outlier > 1):
+            raise ConfigError(
+                f"slam.tracking_depth_outlier: expected 0 (off) or > 1, found {self.tracking_depth_outlier}")
+        if not self.feature_weight >= 0.0:
+            raise ConfigError(f"slam.feature_weight: expected >= 0, found {self.feature_weight}")
+        if not 0.0 <= self.lambda_ssim_map <= 1.0:
+            raise ConfigError(f"slam.lambda_ssim_map: expected a value in [0, 1], found {self.lambda_ssim_map}")
         if not 0.0 < self.init_opacity < 1.0:
             raise ConfigError(f"slam.init_opacity: expected a value in (0, 1), found {self.init_opacity}")
         if self.mapping_schedule not in MAPPING_SCHEDULES:
@@ -233,6 +254,8 @@ class System:
         self._gray: np.ndarray | None = None  # [H, W] uint8 of the frame being processed (flow_pnp)
         self._prev_obs: tuple | None = None  # (gray [H, W] uint8, depth [H, W] float) of the last frame
         self.init_source: list[str] = []  # per tracked frame: "flow_pnp" or "velocity"
+        # the frame being tracked: flow + PnP's inlier corners, world points [M, 3] and pixels [M, 2]
+        self._features: tuple[torch.Tensor, torch.Tensor] | None = None
         # called after each prune with (kf_idx, w2c, render before [RasterOutput], keep [N before] bool or None)
         self.on_prune: Callable[[int, torch.Tensor, RasterOutput, torch.Tensor | None], None] | None = None
         # world points [M, 3] (numpy, so they stay out of the measured torch memory) of the pixels the
@@ -295,11 +318,14 @@ class System:
                 result.n_added = self._densify(rgb, depth, w2c, kf_idx)
                 result.diag["n_reseeded_holes"] = self._reseeded
                 mapped = self._map(kf_idx)
+            t_fit = time.perf_counter()
+            self._fit_diagnostics(result.diag, rgb, depth, w2c)
+            result.diag_s += time.perf_counter() - t_fit
             # the map at its largest in the window: after densification, with Adam's moments and
             # (as during each mapping step) a gradient for every parameter
             result.diag["state_map_bytes"] = self.map.state_bytes() + (sum(
                 p.numel() * p.element_size() for p in self.map.params.values() if p.grad is None) if mapped else 0)
-            t2 = time.perf_counter()
+            t2 = time.perf_counter() - result.diag_s  # the fit diagnostics are not mapping time
             with self._phase("pruning"):
                 result.n_pruned, result.n_candidates = self._prune(kf_idx, w2c, depth, result)
             t3 = time.perf_counter()
@@ -403,9 +429,15 @@ class System:
             if self._prev_obs is not None:
                 K = self.K.double().cpu().numpy()
                 prior = velocity.double().cpu().numpy()
+                inliers: list = []
                 rel, _ = relative_motion(self._prev_obs[0], self._gray, self._prev_obs[1], K, self._flow_cfg, prior,
-                                         rng=self._ransac_rng)
+                                         rng=self._ransac_rng, inliers_out=inliers if self.cfg.feature_weight else None)
                 if rel is not None:
+                    if inliers:
+                        c2w_prev = inverse(prev).double()
+                        pts = torch.as_tensor(inliers[0], device=prev.device) @ c2w_prev[:3, :3].T + c2w_prev[:3, 3]
+                        self._features = (pts.float(), torch.as_tensor(inliers[1], dtype=torch.float32,
+                                                                        device=prev.device))
                     self.init_source.append("flow_pnp")
                     return torch.as_tensor(rel, dtype=prev.dtype, device=prev.device) @ prev
             self.init_source.append("velocity")
@@ -415,7 +447,9 @@ class System:
                init: torch.Tensor | None = None) -> tuple[torch.Tensor, float]:
         cfg = self.cfg
         iters = cfg.tracking_iters if len(self.poses) >= 2 else cfg.tracking_iters_first
+        self._features = None
         init = self.initial_pose() if init is None else init
+        features = self._features
         xi = torch.zeros(6, device=self.device, requires_grad=True)
         opt = torch.optim.Adam([{"params": [xi], "lr": 1.0}])
         gamma = cfg.tracking_lr_final ** (1.0 / max(1, iters - 1))
@@ -441,7 +475,11 @@ class System:
                 out.means2d.retain_grad()
             if mask is None or cfg.tracking_mask == "current":
                 mask = out.alpha.detach() > cfg.silhouette_min
+                if cfg.tracking_depth_outlier > 0:
+                    mask &= self._depth_inliers(out, depth, mask)
             loss, color_l1, depth_l1 = self._tracking_loss(out, rgb, depth, mask)
+            if features is not None and loss.requires_grad:
+                loss = loss + cfg.feature_weight * self._reprojection_px(features, w2c)
             if not loss.requires_grad:  # no Gaussian projects into the image: nothing to track against
                 raise TrackingLost(f"tracking lost at frame {frame_index}: no Gaussian of the map is in view")
             opt.zero_grad(set_to_none=True)
@@ -500,6 +538,27 @@ class System:
         if self._bad_frames >= cfg.lost_patience:
             raise TrackingLost(
                 f"tracking lost at frame {frame_index}: {' and '.join(why)} for {self._bad_frames} frames")
+
+    def _reprojection_px(self, features: tuple[torch.Tensor, torch.Tensor], w2c: torch.Tensor) -> torch.Tensor:
+        """Mean L1 reprojection error (px) of the frontend's inlier corners at pose ``w2c`` [4, 4]."""
+        pts, uv = features  # [M, 3] world, [M, 2] px
+        cam = pts @ w2c[:3, :3].T + w2c[:3, 3]  # [M, 3]
+        z = cam[:, 2:].clamp_min(1e-3)
+        fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
+        proj = torch.cat([fx * cam[:, :1] / z + cx, fy * cam[:, 1:2] / z + cy], 1)  # [M, 2]
+        return (proj - uv).abs().sum(-1).mean()
+
+    def _depth_inliers(self, out: RasterOutput, depth: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """[H, W] bool: pixels whose depth error is within ``tracking_depth_outlier`` x the median error of the
+        tracked pixels with depth, and pixels without depth. SplaTAM's ``ignore_outlier_depth_loss``
+        (``scripts/splatam.py`` ``get_loss``: ``depth_error < 10 * depth_error.median()``) takes the median
+        over the whole image and drops pixels without depth from both terms; this one takes it over the
+        pixels tracking uses, which a sky without depth would otherwise pull towards zero."""
+        err = (self._depth(out).detach() - depth).abs()  # [H, W]
+        has = mask & (depth > 0)
+        if not has.any():
+            return torch.ones_like(mask)
+        return (err <= self.cfg.tracking_depth_outlier * err[has].median()) | (depth <= 0)
 
     def _tracking_loss(self, out: RasterOutput, rgb: torch.Tensor, depth: torch.Tensor, mask: torch.Tensor):
         """L1 colour + lambda_d L1 depth, averaged over ``mask`` [H, W]."""
@@ -632,8 +691,10 @@ class System:
         for it in range(iters):
             kf = pick(it)
             out = self.render(kf.w2c, training=True, iteration=it)
-            color_l1 = (out.color - kf.rgb).abs().mean()
-            loss = color_l1 + cfg.lambda_depth_map * self._depth_l1(out, kf.depth)
+            color = (out.color - kf.rgb).abs().mean()
+            if cfg.lambda_ssim_map > 0:
+                color = (1 - cfg.lambda_ssim_map) * color + cfg.lambda_ssim_map * dssim(out.color, kf.rgb)
+            loss = color + cfg.lambda_depth_map * self._depth_l1(out, kf.depth)
             extra = self.strategy.mapping_loss(MappingContext(kf_idx, it, self.map, self.map.state, True))
             if extra is not None:
                 loss = loss + extra
@@ -671,6 +732,26 @@ class System:
         return n_removed, n_candidates
 
     # ------------------------------------------------------------------ diagnostics
+    @torch.no_grad()
+    def _fit_diagnostics(self, diag: dict, rgb: torch.Tensor, depth: torch.Tensor, w2c: torch.Tensor) -> None:
+        """How well mapping fitted the keyframe it just mapped: PSNR of its own render over the whole image,
+        over the pixels with observed depth (which a map seeds) and over those without (which only
+        neighbouring Gaussians can cover). The split says where a map's decibels are lost."""
+        out = self.render(w2c)
+        sq = (out.color.clamp(0, 1) - rgb).pow(2).mean(-1)  # [H, W]
+        has_depth = depth > 0  # [H, W]
+
+        def psnr(sel: torch.Tensor) -> float | None:
+            if not sel.any():
+                return None
+            mse = float(sq[sel].double().mean())
+            return float("inf") if mse == 0 else -10.0 * float(np.log10(mse))
+
+        diag["kf_psnr_db"] = psnr(torch.ones_like(has_depth))
+        diag["kf_psnr_depth_db"] = psnr(has_depth)
+        diag["kf_psnr_nodepth_db"] = psnr(~has_depth)
+        diag["kf_depth_frac"] = float(has_depth.float().mean())
+
     @torch.no_grad()
     def _prune_diagnostics(self, diag: dict, out: RasterOutput, candidates: torch.Tensor, keep: torch.Tensor | None,
                            n_removed: int, w2c: torch.Tensor, depth: torch.Tensor) -> None:
