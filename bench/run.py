@@ -699,7 +699,7 @@ def _evaluate(
         res["eval_mask_frac"] = None if mask_frac is None else round(mask_frac, 5)
         if ev.protocol == "splatam":
             res["eval_depth_range_m"] = [near_m, far_m]
-    if res["ms_ssim"] is None and frames:
+    if min(parts.seq.height, parts.seq.width) < MS_SSIM_MIN_PX:
         log.info("ms_ssim: n/a: %dx%d px images are smaller than the %d px MS-SSIM needs on a side",
                  parts.seq.height, parts.seq.width, MS_SSIM_MIN_PX)
     res["eval_frames"] = len(idx)

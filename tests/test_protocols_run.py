@@ -71,3 +71,14 @@ def test_bad_protocol_settings_are_one_line_exit_2(args: list[str], says: str, t
     assert res.code == 2
     assert says in res.error_line
     assert not (tmp_path / "run").exists()
+
+
+def test_run_table_names_the_protocol_and_ms_ssim() -> None:
+    from bench.summary import run_table
+
+    text = run_table("ok", Path("/runs/a"), {"eval_protocol": "splatam", "psnr_db": 21.5, "ssim": 0.8,
+                                            "ms_ssim": None}, None)  # fmt: skip
+    rows = {line.split()[0]: line.split(None, 1)[1] for line in text.splitlines()}
+    assert rows["protocol"] == "splatam"
+    assert rows["MS-SSIM"] == "n/a (images under 176 px on a side)"
+    assert "protocol" not in run_table("ok", Path("/runs/a"), {"psnr_db": 21.5}, None)  # a run from before protocols
