@@ -33,6 +33,7 @@ from bench.typed import SEED_MAX, as_config, check_rules, setting
 from bench.typed import expected as expected_in
 
 ALIGNMENTS = ("se3", "sim3", "none")
+PROTOCOLS = ("full", "splatam", "released")  # bench/metrics/protocol.py:PROTOCOLS
 DETERMINISM = ("strict", "fast")  # bench/determinism.py:MODES
 
 
@@ -44,6 +45,10 @@ class MemoryConfig:
 @dataclass
 class EvalConfig:
     every: int = setting(1, "int", lo=1)  # evaluate PSNR/SSIM/LPIPS on every N-th tracked frame
+    # which pixels are scored (bench/metrics/protocol.py): full = the whole image (the default; the
+    # numbers of every run before protocols); splatam = SplaTAM's valid-depth mask within the dataset's
+    # eval_depth_near_m/eval_depth_far_m; released = the released Pocket-SLAM code's rendered silhouette > 0.5
+    protocol: str = setting("full", "str", choices=PROTOCOLS)
     ate_align: str = setting("se3", "str", choices=ALIGNMENTS)
     # estimate <-> ground-truth timestamp association for ATE/RPE
     max_diff_s: float = setting(0.01, "float", lo=0.0, lo_open=True)

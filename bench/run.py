@@ -41,6 +41,7 @@ from bench.errors import BenchError, ConfigError, TrackingLost
 from bench.export import MAP_FILE, save_snapshot, write_map
 from bench.keys import dataset_name, run_keys
 from bench.measure import MemoryProbe, PhaseTimer
+from bench.metrics.image import MS_SSIM_MIN_PX
 from bench.metrics.trajectory import TumAppender
 from bench.progress import Phase
 from bench.record import is_leftover, owner, record_failed, write_json
@@ -497,7 +498,8 @@ def milestone_row(cfg: RunConfig, parts: Parts, drive: Drive, out: Path) -> dict
     est_c2w = tracked_c2w(system, n_done)
     res = _evaluate(cfg, out, parts, est_c2w, drive, system.device, write_gt=False)
     mem = schema.memory_summary(drive.windows, system.device.type)
-    row = {k: res.get(k) for k in ("path_length_m", "ate_rmse_m", "psnr_db", "ssim", "lpips", "eval_frames")}
+    row = {k: res.get(k) for k in ("path_length_m", "path_length_ratio", "ate_rmse_m", "psnr_db", "ssim", "ms_ssim",
+                                   "lpips", "eval_frames")}
     row.update(frames=n_done, n_gaussians=len(system.map), peak_mem_mib=mem[schema.PEAK_FIELD],
                state_mib=round(system.map.state_bytes() / schema.MIB, 4))
     row["eval_s"] = round(time.perf_counter() - t0, 3)
@@ -642,17 +644,21 @@ def _evaluate(
     images: bool = True,
     write_gt: bool = True,
 ) -> dict[str, Any]:
-    """ATE (evo), PSNR/SSIM (torchmetrics), LPIPS when weights exist; none of it is SLAM time.
+    """ATE (evo), path-length ratio, PSNR/SSIM/MS-SSIM (torchmetrics), LPIPS when weights exist; none of
+    it is SLAM time.
 
+    The image metrics are scored under ``eval.protocol`` (``bench.metrics.protocol``): the whole image,
+    or the pixels SplaTAM's valid-depth mask or the released code's silhouette mask keeps.
     ``images=False`` (a stopped or failed run) skips rendering: the trajectory metrics only.
     traj_est.txt is already on disk, appended frame by frame.
     """
-    from bench.metrics.image import image_metrics
     from bench.metrics.lpips import LPIPS
-    from bench.metrics.trajectory import Trajectory, ate, rpe, write_tum
+    from bench.metrics.protocol import frame_metrics, mean_metrics, protocol_mask
+    from bench.metrics.trajectory import Trajectory, ate, path_length_ratio, rpe, write_tum
 
     ev = cfg.eval
-    res: dict[str, Any] = {"ate_rmse_m": None, "psnr_db": None, "ssim": None, "lpips": None}
+    res: dict[str, Any] = {"ate_rmse_m": None, "psnr_db": None, "ssim": None, "ms_ssim": None, "lpips": None,
+                           "eval_protocol": ev.protocol}
     if not est_c2w:
         return res
     ts = np.asarray(drive.timestamps_s)
@@ -666,23 +672,42 @@ def _evaluate(
         res.update(ate(est, gt, align=ev.ate_align, max_diff_s=ev.max_diff_s))
         res["ate_first_frame"], res["ate_last_frame"] = 0, len(est_c2w) - 1  # inclusive, tracked-frame positions
         res["path_length_m"] = round(float(np.linalg.norm(np.diff(gt.positions_m, axis=0), axis=1).sum()), 4)
+        ratio = path_length_ratio(est, gt, max_diff_s=ev.max_diff_s)
+        res["path_length_ratio"] = None if ratio is None else round(ratio, 5)
         if ev.rpe:
             res.update(rpe(est, gt, align=ev.ate_align, max_diff_s=ev.max_diff_s))
     if not images:
         return res
     idx = list(range(0, len(est_c2w), max(1, ev.every)))
-    preds, targets = [], []
+    near_m, far_m = _eval_depth_range(cfg.dataset)
+    lp = parts.lpips or (LPIPS.from_weights(ev.lpips_weights) if ev.lpips else None)
+    lp = lp.to(device) if lp is not None else None
+    frames = []
     with Phase("evaluate", len(idx), "frame", cfg.progress) as bar:
         with torch.no_grad():
             for i in idx:
                 w2c = inverse(est_c2w[i]).float().to(device)
-                preds.append(parts.system.render(w2c).color.clamp(0, 1).cpu())
-                targets.append(parts.seq[i].rgb)
+                render = parts.system.render(w2c)
+                frame = parts.seq[i]
+                mask = protocol_mask(ev.protocol, frame.depth_m, render.alpha.cpu(), near_m, far_m)  # [H, W] or None
+                frames.append(frame_metrics(ev.protocol, render.color.clamp(0, 1).cpu(), frame.rgb, mask, lp))
                 bar.update(1)
-        lp = parts.lpips or (LPIPS.from_weights(ev.lpips_weights) if ev.lpips else None)
-        lp = lp.to(device) if lp is not None else None
-        img = image_metrics(preds, targets, lpips=lp)
+    img = mean_metrics(frames)
     img.pop("num_frames", None)  # that count is res["eval_frames"]; metrics["num_frames"] is frames tracked
+    mask_frac = img.pop("mask_frac", None)
     res.update({k: _finite_or_none(v) if isinstance(v, float) else v for k, v in img.items()})
+    if ev.protocol != "full":
+        res["eval_mask_frac"] = None if mask_frac is None else round(mask_frac, 5)
+        if ev.protocol == "splatam":
+            res["eval_depth_range_m"] = [near_m, far_m]
+    if min(parts.seq.height, parts.seq.width) < MS_SSIM_MIN_PX:
+        log.info("ms_ssim: n/a: %dx%d px images are smaller than the %d px MS-SSIM needs on a side",
+                 parts.seq.height, parts.seq.width, MS_SSIM_MIN_PX)
     res["eval_frames"] = len(idx)
     return res
+
+
+def _eval_depth_range(dataset: Any) -> tuple[float, float | None]:
+    """The dataset's ``eval_depth_near_m`` / ``eval_depth_far_m`` (a plugin's plain dict may lack them)."""
+    get = dataset.get if isinstance(dataset, dict) else lambda k, d: getattr(dataset, k, d)
+    return float(get("eval_depth_near_m", 0.0)), get("eval_depth_far_m", None)

@@ -92,9 +92,11 @@ FIT_COLUMNS: tuple[str, ...] = ("kf_psnr_db", "kf_psnr_depth_db", "kf_psnr_nodep
 MILESTONE_FIELDS: tuple[Field, ...] = (
     Field("frames", "", "frames tracked when the row was taken (an `eval.at_frames` entry)"),
     Field("path_length_m", "m", "ground-truth path length over those frames"),
+    Field("path_length_ratio", "", "estimated / ground-truth path length over those frames, unaligned"),
     Field("ate_rmse_m", "m", "ATE RMSE over those frames (`eval.ate_align`): what a drive this long scores"),
     Field("psnr_db", "dB", "PSNR of the map as it was then, on every `eval.every`-th of those frames"),
     Field("ssim", "", "... SSIM"),
+    Field("ms_ssim", "", "... MS-SSIM (null for images under 176 px on a side)"),
     Field("lpips", "", "... LPIPS (null without local AlexNet weights)"),
     Field("eval_frames", "", "frames rendered for the row"),
     Field("n_gaussians", "", "Gaussians in the map then"),
@@ -133,12 +135,24 @@ METRIC_FIELDS: tuple[Field, ...] = (
     Field("ate_first_frame", "", "first tracked frame the ATE is over (position among tracked frames)"),
     Field("ate_last_frame", "", "last tracked frame the ATE is over (inclusive)"),
     Field("path_length_m", "m", "ground-truth path length over the tracked frames"),
+    Field("path_length_ratio", "", "estimated path length / ground-truth path length over the tracked frames, "
+          "unaligned: below 1, the tracker lost scale and came out short"),
     Field("rpe_trans_rmse_m", "m", "RPE translation RMSE (`eval.rpe=true`)"),
     Field("rpe_rot_rmse_deg", "deg", "RPE rotation RMSE (`eval.rpe=true`)"),
     Field("rpe_delta_frames", "", "RPE step"),
-    Field("psnr_db", "dB", "PSNR of frames rendered from the final map at the estimated poses"),
-    Field("ssim", "", "SSIM, same frames"),
-    Field("lpips", "", "LPIPS (AlexNet), null without local weights"),
+    Field("psnr_db", "dB", "PSNR of frames rendered from the final map at the estimated poses, scored under "
+          "`eval_protocol`"),
+    Field("ssim", "", "SSIM (11 px Gaussian window), same frames and protocol"),
+    Field("ms_ssim", "", "MS-SSIM (5 scales; what the paper's base system reports as SSIM), same frames and "
+          "protocol; null for images under 176 px on a side"),
+    Field("lpips", "", "LPIPS (AlexNet), same frames and protocol; null without local weights"),
+    Field("eval_protocol", "", "`eval.protocol` the image metrics were scored under: `full` (the whole image), "
+          "`splatam` (valid-depth mask), `released` (rendered silhouette > 0.5); absent in runs before it existed, "
+          "which were `full`", "text"),
+    Field("eval_mask_frac", "", "share of the pixels the protocol's mask kept, mean over the evaluated frames "
+          "(masked protocols only)"),
+    Field("eval_depth_range_m", "m", "[near, far] of the `splatam` mask (`dataset.eval_depth_near_m`, "
+          "`dataset.eval_depth_far_m`; far null: none)", "object"),
     Field("eval_frames", "", "frames the image metrics are over (`eval.every`)"),
     Field("fps", "1/s", "frames / SLAM-loop wall time, warm-up frames excluded"),
     Field("slam_wall_s", "s", "SLAM-loop wall time after the warm-up frames"),

@@ -40,6 +40,7 @@ FIELDS: tuple[tuple[str, str, Callable[[Any], str]], ...] = (
     ("ATE", "ate_rmse_m", _num(".4f", " m")),
     ("PSNR", "psnr_db", _num(".2f", " dB")),
     ("SSIM", "ssim", _num(".4f")),
+    ("MS-SSIM", "ms_ssim", _num(".4f")),
     ("LPIPS", "lpips", _num(".4f")),
     ("FPS", "fps", _num(".2f")),
     ("peak memory", "peak_mem_mib", _num(".1f", " MiB")),
@@ -50,12 +51,16 @@ FIELDS: tuple[tuple[str, str, Callable[[Any], str]], ...] = (
 def run_table(status: str, out_dir: Path, metrics: dict[str, Any], wall_s: float | None) -> str:
     """The aligned table printed after one run."""
     rows = [("status", status)]
+    if metrics.get("eval_protocol"):  # the pixels PSNR/SSIM/MS-SSIM/LPIPS were scored on (eval.protocol)
+        rows.append(("protocol", str(metrics["eval_protocol"])))
     for label, key, show in FIELDS:
         value = show(metrics.get(key))
         if key == "peak_mem_mib" and metrics.get("peak_mem_source") and value != "n/a":
             value += f" ({metrics['peak_mem_source']})"
         if key == "gaussians_peak" and metrics.get("gaussians_final") is not None:
             value += f", {metrics['gaussians_final']} final"
+        if key == "ms_ssim" and value == "n/a" and metrics.get("psnr_db") is not None:
+            value += " (images under 176 px on a side)"
         if key == "lpips" and value == "n/a":
             value += " (no AlexNet weights: set eval.lpips_weights=PATH)"
         rows.append((label, value))

@@ -28,9 +28,16 @@ class DatasetConfig:
 
     name: str = setting(MISSING_VALUE, "str")
     seq: str | None = setting(None, "seq", nullable=True)  # always a string; None = the dataset's default sequence
+    # eval.protocol=splatam scores the pixels whose observed depth lies strictly between these (the
+    # authors' loader's depth_filter_near/far, bench/metrics/protocol.py); 0 and null: every pixel with depth
+    eval_depth_near_m: float = setting(0.0, "float", lo=0.0)
+    eval_depth_far_m: float | None = setting(None, "float", lo=0.0, lo_open=True, nullable=True)
 
     def __post_init__(self) -> None:
         check_rules(self, "dataset.")  # every field's rule, the subclasses' included
+        if self.eval_depth_far_m is not None and self.eval_depth_far_m <= self.eval_depth_near_m:
+            raise ConfigError(f"dataset.eval_depth_far_m: expected more than eval_depth_near_m "
+                              f"({self.eval_depth_near_m:g}), found {self.eval_depth_far_m:g}")
 
     def default_sequence(self) -> str | None:
         """The sequence a run uses when none is named (recorded as ``run.seq``)."""

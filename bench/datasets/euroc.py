@@ -57,6 +57,10 @@ class EurocConfig(StereoConfig, realio.GroundTruthPolicy):
     default_seq: str = "V1_01_easy"  # folder name or alias: MH01..MH05, V101..V103, V201..V203
     downscale: int = 2  # 752x480 -> 376x240; K (rectified P1) scaled to match
     max_depth_m: float | None = 10.0  # 0.11 m baseline: 1 px of disparity ~ 2 m at 10 m
+    # eval.protocol=splatam's depth range: the released Pocket-SLAM configs/euroc/euroc.yaml
+    # (depth_filter_near 0.1, depth_filter_far 10.0)
+    eval_depth_near_m: float = 0.1
+    eval_depth_far_m: float | None = 10.0
     # cv2.stereoRectify alpha: 0 crops to valid pixels, 1 keeps all (black borders)
     rectify_alpha: float = setting(0.0, "float", lo=0.0, hi=1.0)
     # nearest depth fx*b/64 ~ 0.75 m at full resolution

@@ -40,6 +40,10 @@ class KittiConfig(StereoConfig):
     color: str = setting("auto", "str", choices=COLOR_MODES)
     downscale: int = 2  # 1241x376 -> 620x188 (1226x370 -> 613x185); the fused rasterizer affords 4x the pixels of 1/4
     max_depth_m: float | None = 50.0  # stereo depth beyond this is set to 0 (1 px of disparity ~ 8 m at 50 m)
+    # eval.protocol=splatam's depth range: the released Pocket-SLAM configs/kitti/kitti03.yaml (and kitti00-02,
+    # kitti04-10): depth_filter_near 0.1, depth_filter_far 30.0
+    eval_depth_near_m: float = 0.1
+    eval_depth_far_m: float | None = 30.0
 
 
 SCHEMA = KittiConfig  # the dataset's typed settings, found through its entry point (bench.datasets.schema)

@@ -48,6 +48,8 @@ class TumConfig(RecordedConfig, realio.GroundTruthPolicy):
     default_seq: str = "rgbd_dataset_freiburg1_desk"  # folder name, or short form fr1_desk
     downscale: int = 2  # 640x480 -> 320x240; K scaled to match
     max_depth_m: float | None = 10.0  # Kinect readings beyond this are set to 0; None keeps all
+    # eval.protocol=splatam keeps the base's range (eval_depth_near_m 0, eval_depth_far_m null: every pixel with
+    # depth): SplaTAM's configs/data/TUM/*.yaml set no depth filter, and the released loader filters .npy depth only
     # rgb <-> depth association (TUM associate.py's default tolerance)
     max_diff_s: float = setting(0.02, "float", lo=0.0, lo_open=True)
     depth_scale: float = setting(5000.0, "float", lo=0.0, lo_open=True)  # PNG value per metre

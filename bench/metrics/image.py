@@ -1,4 +1,4 @@
-"""Rendering quality (PSNR, SSIM) through torchmetrics' functional API, one convention everywhere.
+"""Rendering quality (PSNR, SSIM, MS-SSIM) through torchmetrics' functional API, one convention everywhere.
 
 Images are ``[H, W, 3]`` float tensors in [0, 1]; the data range is 1.
 
@@ -15,6 +15,17 @@ smooth-plus-noise images at noise 0.02-0.3 as up to 2.6e-3 at 64x80, 6e-4 at 120
 The original 3DGS code's SSIM (zero padding, border kept) differs from both in the same way.
 
 PSNR of identical images is ``inf``; it is reported as such rather than clipped.
+
+MS-SSIM is the SSIM the paper's base system reports (SplaTAM ``utils/eval_helpers.py``, ``eval``:
+``ms_ssim(weighted_im, weighted_gt_im, data_range=1.0, size_average=True)`` from pytorch_msssim):
+five scales with Wang et al.'s weights, the same 11 px / sigma 1.5 window and K1, K2 as SSIM,
+negative per-scale terms clipped to 0 (both libraries' ``relu``). It is computed here with
+torchmetrics, which differs from pytorch_msssim in three details: torchmetrics averages each
+scale over channels before the product across scales (pytorch_msssim takes the product per
+channel, then the mean), scores the coarsest scale's SSIM term over its reflect-padded border
+too, and drops an odd last row or column when it halves (pytorch_msssim zero-pads it). The two
+agree closely for similar images and drift apart for dissimilar ones
+(``tests/metrics/test_protocol.py`` pins a known answer of pytorch_msssim 1.0.0).
 """
 
 from __future__ import annotations
@@ -24,7 +35,11 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import torch
-from torchmetrics.functional.image import peak_signal_noise_ratio, structural_similarity_index_measure
+from torchmetrics.functional.image import (
+    multiscale_structural_similarity_index_measure,
+    peak_signal_noise_ratio,
+    structural_similarity_index_measure,
+)
 
 from bench.errors import MetricError
 
@@ -36,6 +51,10 @@ SSIM_SIGMA_PX = 1.5
 SSIM_K1 = 0.01
 SSIM_K2 = 0.03
 DATA_RANGE = 1.0
+MS_SSIM_BETAS = (0.0448, 0.2856, 0.3001, 0.2363, 0.1333)  # Wang et al. 2003; pytorch_msssim's and torchmetrics' default
+# the coarsest of the 5 scales (1/16 of the image) must still hold the 11 px window: torchmetrics refuses
+# a side s with s // 16 <= 10 (pytorch_msssim, SplaTAM's library, asserts s > 160)
+MS_SSIM_MIN_PX = SSIM_KERNEL_PX * 2 ** (len(MS_SSIM_BETAS) - 1)
 
 
 def _to_bchw(pred: torch.Tensor, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -63,24 +82,51 @@ def psnr_db(pred: torch.Tensor, target: torch.Tensor) -> float:
     return float(peak_signal_noise_ratio(p, t, data_range=DATA_RANGE))
 
 
+# the SSIM window and constants, shared by SSIM and every scale of MS-SSIM
+_WINDOW = dict(gaussian_kernel=True, sigma=SSIM_SIGMA_PX, kernel_size=SSIM_KERNEL_PX, data_range=DATA_RANGE,
+               k1=SSIM_K1, k2=SSIM_K2)
+
+
+def _sized_bchw(pred: torch.Tensor, target: torch.Tensor, metric: str, min_px: int,
+                why: str = "") -> tuple[torch.Tensor, torch.Tensor]:
+    """``_to_bchw``, and one ``MetricError`` line when the shorter side is under ``min_px``."""
+    p, t = _to_bchw(pred, target)
+    if min(p.shape[-2:]) < min_px:
+        raise MetricError(f"{metric} needs images of at least {min_px}x{min_px} px{why}: found {list(pred.shape[:2])}")
+    return p, t
+
+
 def ssim(pred: torch.Tensor, target: torch.Tensor) -> float:
     """Mean SSIM with the module's convention (Gaussian 11 / 1.5, K1 0.01, K2 0.03, range 1)."""
+    p, t = _sized_bchw(pred, target, "ssim", SSIM_KERNEL_PX)
+    return float(structural_similarity_index_measure(p, t, **_WINDOW))
+
+
+def psnr_channel_mean_db(pred: torch.Tensor, target: torch.Tensor) -> float:
+    """PSNR per colour channel, then the mean over channels: SplaTAM's ``calc_psnr(im, gt).mean()``.
+
+    ``utils/slam_external.py:calc_psnr`` views the ``[C, H, W]`` image as ``C`` rows and takes one
+    MSE per row, so its figure is the mean of three channel PSNRs, not the PSNR of the pooled MSE
+    (``psnr_db``); on a gray image replicated to three channels the two are equal. A channel
+    rendered exactly gives ``inf``, and so does the mean.
+    """
     p, t = _to_bchw(pred, target)
-    if min(p.shape[-2:]) < SSIM_KERNEL_PX:
-        raise MetricError(
-            f"ssim needs images of at least {SSIM_KERNEL_PX}x{SSIM_KERNEL_PX} px: found {list(pred.shape[:2])}"
-        )
-    value = structural_similarity_index_measure(
-        p,
-        t,
-        gaussian_kernel=True,
-        sigma=SSIM_SIGMA_PX,
-        kernel_size=SSIM_KERNEL_PX,
-        data_range=DATA_RANGE,
-        k1=SSIM_K1,
-        k2=SSIM_K2,
-    )
-    return float(value)
+    mse = ((p - t) ** 2).flatten(2).mean(-1)[0]  # [3]
+    if bool((mse == 0).any()):
+        return math.inf
+    return float((-10.0 * torch.log10(mse / DATA_RANGE**2)).mean())
+
+
+def ms_ssim(pred: torch.Tensor, target: torch.Tensor) -> float:
+    """Multi-scale SSIM (5 scales, data range 1, the SSIM window above), in float64.
+
+    The metric the paper's base system reports as "SSIM"; see the module docstring for its source
+    and how torchmetrics' figure relates to SplaTAM's pytorch_msssim. Images whose shorter side is
+    below ``MS_SSIM_MIN_PX`` have no fifth scale to score: a ``MetricError`` says so.
+    """
+    why = f" ({len(MS_SSIM_BETAS)} scales of an {SSIM_KERNEL_PX} px window)"
+    p, t = _sized_bchw(pred, target, "ms_ssim", MS_SSIM_MIN_PX, why)
+    return float(multiscale_structural_similarity_index_measure(p, t, **_WINDOW, betas=MS_SSIM_BETAS, normalize="relu"))
 
 
 def image_metrics(

@@ -234,6 +234,21 @@ def distance_along(positions_m: np.ndarray) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(positions_m, axis=0), axis=1))])
 
 
+def path_length_ratio(est: Trajectory, gt: Trajectory, max_diff_s: float = MAX_DIFF_S) -> float | None:
+    """Estimated path length / true path length over the associated frames, unaligned.
+
+    A tracker that loses scale at driving speed drives a path that comes out short (< 1) or long
+    (> 1) while its SE(3)-aligned ATE can stay small; no alignment is applied, since a Sim(3) fit
+    would rescale exactly what this measures (a rigid one leaves lengths as they are). None when
+    the true path has no length (a camera that stood still).
+    """
+    traj_ref, traj_est = _associate_align(est, gt, "none", max_diff_s)
+    true_m = float(distance_along(traj_ref.positions_xyz)[-1])
+    if not true_m > 0:
+        return None
+    return float(distance_along(traj_est.positions_xyz)[-1]) / true_m
+
+
 def drift_components(est: Trajectory, gt: Trajectory, max_diff_s: float = MAX_DIFF_S) -> dict[str, np.ndarray]:
     """Per associated frame, the unaligned position error split into the part within the plane of the
     ground-truth path and the part off it, with the metres driven by then.
@@ -301,4 +316,5 @@ def rpe(
     return out
 
 
-__all__ = ["MAX_DIFF_S", "Trajectory", "TumAppender", "aligned_positions", "ate", "read_tum", "rpe", "write_tum"]
+__all__ = ["MAX_DIFF_S", "Trajectory", "TumAppender", "aligned_positions", "ate", "path_length_ratio", "read_tum",
+           "rpe", "write_tum"]

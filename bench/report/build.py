@@ -137,7 +137,7 @@ def _make_report(
 
 
 KEYFRAMES_FILE = "keyframes.csv"  # every finished run's keyframes.csv rows, keyed by its runs.csv path
-TEXT_COLUMNS = ("strategy", "method", "dataset", "seq", "slam_preset", "status", "path")
+TEXT_COLUMNS = ("strategy", "method", "dataset", "seq", "slam_preset", "eval_protocol", "status", "path")
 
 
 def redraw(report_dir: Path, formats: tuple[str, ...] = ("png",), dpi: int = DPI) -> ReportResult:
@@ -181,7 +181,7 @@ def _stored_run_tables(path: Path) -> dict[str, pd.DataFrame]:
 
 STATS_COLUMNS: tuple[str, ...] = (
     "dataset", "metric", "method", "strategy", "keep_ratio", "slam_preset", "seq", "n_seeds", "seeds", "mean",
-    "std", "ci95_low", "ci95_high", "baseline", "p_welch", "within_noise",
+    "std", "ci95_low", "ci95_high", "baseline", "p_welch", "within_noise", "eval_protocol",
 )  # fmt: skip
 
 
@@ -210,5 +210,6 @@ def seed_statistics(tables: list[Table], baseline: str) -> pd.DataFrame:
                         "baseline": baseline if row.variant.strategy != baseline else None,
                         "p_welch": cell.p_value,
                         "within_noise": cell.noise if cell.p_value is not None else None,
+                        "eval_protocol": table.protocol,
                     })  # fmt: skip
     return pd.DataFrame(rows, columns=list(STATS_COLUMNS))

@@ -26,10 +26,11 @@ from bench.report.settings import read_settings
 REQUIRED_RUN_KEYS: tuple[str, ...] = ("strategy", "dataset")
 DEFAULT_SEQ = "default"  # the harness writes seq null when a dataset has no named default sequence
 DEFAULT_PRESET = "default"  # runs written before slam_preset existed used the default backend
+DEFAULT_PROTOCOL = "full"  # runs written before eval.protocol existed were scored on the whole image
 # The metrics every row has, first and in this order (names from bench.schema, which says which are
 # numbers); any other metric a run wrote is kept and appended.
 METRIC_KEYS: tuple[str, ...] = (
-    "ate_rmse_m", "ate_alignment", "ate_num_poses", "psnr_db", "ssim", "lpips", "eval_frames",
+    "ate_rmse_m", "ate_alignment", "ate_num_poses", "psnr_db", "ssim", "ms_ssim", "lpips", "eval_frames",
     "fps", "slam_wall_s", "refine_s", "num_frames", "num_keyframes", "gaussians_final", "gaussians_peak",
     "gaussians_added_total", "gaussians_pruned_total", "prune_candidates_total",
     "state_peak_mib", "cpu_rss_peak_mib", "torch_live_peak_mib", "cuda_alloc_peak_mib",
@@ -123,6 +124,9 @@ def read_run(run_dir: Path) -> dict[str, Any]:
         keep_ratio = _number("run.keep_ratio", run.get("keep_ratio"))
         keep_ratio = None if keep_ratio is None else float(keep_ratio)
         values = _flat_metrics(metrics)
+        protocol = values.pop("eval_protocol", None)
+        if protocol is not None and not isinstance(protocol, str):
+            raise ReportError(f"expected a protocol name or null for 'eval_protocol', found {protocol!r}")
     except ReportError as exc:
         raise ReportError(f"{exc} in {path}") from None
 
@@ -134,6 +138,7 @@ def read_run(run_dir: Path) -> dict[str, Any]:
         "seed": seed,
         "keep_ratio": keep_ratio,
         "slam_preset": str(run.get("slam_preset") or DEFAULT_PRESET),
+        "eval_protocol": protocol,  # which pixels the image metrics scored (bench.metrics.protocol); set below
         "config_hash": run.get("config_hash"),
         "status": status,
         "error": data.get("error"),
@@ -150,6 +155,9 @@ def read_run(run_dir: Path) -> dict[str, Any]:
     for name, version in sorted(versions.items()):
         row[f"version_{name}"] = version
     row.update(read_settings(run_dir, provenance.get("device")))
+    # a run that failed before evaluating says its protocol only in its config.yaml, if at all (then None:
+    # its 'failed' mark stands in every protocol's table); a finished run from before protocols was full
+    row["eval_protocol"] = protocol or row.get("eval.protocol") or (None if status == "failed" else DEFAULT_PROTOCOL)
     if row.get("dataset") == "synthetic" and row.get("seq") is not None:
         row["seq"] = synthetic_drive(row["seq"], row.get("dataset.route"), row.get("dataset.route_file"))
     row["path"] = str(run_dir)
@@ -185,7 +193,7 @@ def collect(roots: Iterable[Path]) -> Collection:
         if present and all(isinstance(v, int) and not isinstance(v, bool) for v in present):
             runs[column] = runs[column].astype("Int64")
     runs["seed"] = runs["seed"].astype("Int64")
-    keys = ["strategy", "dataset", "seq", "seed", "keep_ratio", "slam_preset"]
+    keys = ["strategy", "dataset", "seq", "seed", "keep_ratio", "slam_preset", "eval_protocol"]
     dupes = runs[runs.duplicated(subset=keys, keep=False)]
     for key, group in dupes.groupby(keys, dropna=False, sort=True):
         warnings.append(

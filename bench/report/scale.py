@@ -20,11 +20,11 @@ import numpy as np
 import pandas as pd
 
 from bench import schema
-from bench.report.collect import read_run_table
+from bench.report.collect import is_missing, read_run_table
 from bench.report.names import method_name
 from bench.report.paper import LOST, PAPER_STRATEGY, load_paper_tables
 from bench.report.stats import welch_p, within_noise
-from bench.report.tables import Variant, variant_runs, variants
+from bench.report.tables import Variant, protocol_note, run_protocols, variant_runs, variants
 
 Warn = Callable[[str], None]
 MILESTONES_FILE = schema.MILESTONES_FILE  # every run's rows, keyed by its runs.csv path, in a report folder
@@ -114,11 +114,20 @@ def scale_markdown(runs: pd.DataFrame, keyframes: dict[str, pd.DataFrame], miles
             if not any(str(p) in by_path for p in one["path"]):
                 continue
             ref_name, ref_m = _reference_length(dataset, seq, lengths)
-            lines += [f"## {dataset} {seq}", ""]
+            lines += [f"## {dataset} {seq}", "", _protocol_line(one), ""]
             lines += _growth_table(one, found, keyframes, ref_name, ref_m, baseline, paper_table)
             lines += _accuracy_table(one, found, by_path)
             lines += _answer(one, found, by_path, baseline)
     return "\n".join(lines) + "\n"
+
+
+def _protocol_line(one: pd.DataFrame) -> str:
+    """Which pixels the section's PSNR scored; several protocols are named as such (its cells pool runs)."""
+    found = sorted({p for p in run_protocols(one) if not is_missing(p)}) or ["full"]
+    if len(found) == 1:
+        return protocol_note(found[0]) + " The paper's peak is memory, which no protocol changes."
+    return (f"Image metrics scored with several eval.protocol values ({', '.join(found)}): the PSNR cells below "
+            "pool them; report them apart to compare.")
 
 
 def _variant_rows(one: pd.DataFrame, found: list[Variant]) -> list[tuple[Variant, pd.DataFrame]]:

@@ -24,7 +24,7 @@ SETTING_KEYS: tuple[str, ...] = (
     "prune.target", "prune.n_target", "prune.every", "prune.grad_source",
     "dataset.downscale", "dataset.width", "dataset.height", "dataset.n_frames", "dataset.first", "dataset.last",
     "dataset.route", "dataset.route_file",
-    "threads", "determinism",
+    "threads", "determinism", "eval.protocol",
 )  # fmt: skip
 
 
@@ -82,7 +82,8 @@ def settings_markdown(runs: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
-POOL_KEYS: tuple[str, ...] = ("dataset", "seq", "strategy", "keep_ratio", "slam_preset")  # what one table cell pools
+# what one table cell pools (a table holds one eval.protocol: bench.report.tables.build_tables)
+POOL_KEYS: tuple[str, ...] = ("dataset", "seq", "strategy", "keep_ratio", "slam_preset", "eval_protocol")
 
 
 def mixed_settings(runs: pd.DataFrame) -> list[str]:

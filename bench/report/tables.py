@@ -13,7 +13,8 @@ from typing import Literal
 
 import pandas as pd
 
-from bench.report.collect import is_missing
+from bench.metrics.protocol import is_masked
+from bench.report.collect import DEFAULT_PROTOCOL, is_missing
 from bench.report.names import dataset_name, file_token, method_name, paper_sequence, sequence_sort_key, strategy_rank
 from bench.report.paper import LOST, PAPER_METRIC, PAPER_STRATEGY, PAPER_UNIT, paper_values
 from bench.report.stats import ALPHA, welch_p, within_noise
@@ -74,10 +75,13 @@ class Table:
     blocks: list[Block]
     caption: str
     notes: list[str]
+    protocol: str = DEFAULT_PROTOCOL  # eval.protocol of every run in the table (one per table, never mixed)
+    split: bool = False  # the dataset's runs hold several protocols: one table each, named by protocol
 
     @property
     def name(self) -> str:
-        return f"{self.kind}_{file_token(self.dataset)}"
+        suffix = f"_{self.protocol}" if self.split else ""
+        return f"{self.kind}_{file_token(self.dataset)}{suffix}"
 
 
 @dataclass(frozen=True)
@@ -106,8 +110,15 @@ ACCURACY_METRICS: tuple[MetricSpec, ...] = (
     MetricSpec("ate_rmse_m", "ATE [m]", "lower", 3),
     MetricSpec("psnr_db", "PSNR [dB]", "higher", 2),
     MetricSpec("ssim", "SSIM", "higher", 3),
+    MetricSpec("ms_ssim", "MS-SSIM", "higher", 3),
     MetricSpec("lpips", "LPIPS", "lower", 3),
 )
+# what each protocol scores, in a table's words (bench/metrics/protocol.py)
+PROTOCOL_WORDS: dict[str, str] = {
+    "full": "the whole image",
+    "splatam": "SplaTAM's valid-depth mask (the paper's base system)",
+    "released": "the rendered silhouette > 0.5 (the released Pocket-SLAM code's final evaluation)",
+}
 MEMORY = MetricSpec("peak_mem_mib", "Peak memory [MiB]", "lower", 1)
 # churn: whether pruning shrank the map or only fed re-seeding
 GAUSSIANS: tuple[MetricSpec, ...] = (
@@ -244,7 +255,7 @@ def _paper_rows(paper: pd.DataFrame, table: str, dataset: str, seqs: list[str], 
     recomputed = False
     for method, per_metric in values.items():
         by_method[method] = {}
-        for key in metrics:
+        for key in (k for k in metrics if k in PAPER_METRIC):
             printed = per_metric.get(PAPER_METRIC[key], {})
             unit = PAPER_UNIT.get(PAPER_METRIC[key], "")
             cells = [paper_cell(printed.get(paper_sequence(dataset, s)), unit) for s in seqs]
@@ -315,6 +326,8 @@ def _metric_block(
     prow: list[tuple[str, Row]] = []
     if paper_rows is not None:
         for method, per_metric in paper_rows.by_method.items():
+            if spec.key not in per_metric:
+                continue  # a metric the paper does not print (our SSIM: its "SSIM" is MS-SSIM)
             paper_cells[method] = per_metric[spec.key]
             prow.append((method, Row(f"(paper) {method}", list(per_metric[spec.key]), paper=True)))
     block = Block(spec.title, spec.better, "value", spec.decimals, _ordered_rows(measured, prow), key=spec.key)
@@ -457,40 +470,72 @@ def pick_baseline(found: list[Variant], baseline: str) -> tuple[Baseline | None,
     )
 
 
+def protocol_note(protocol: str) -> str:
+    """The line every table carries: which pixels its image metrics were scored on."""
+    words = PROTOCOL_WORDS.get(protocol, "a protocol this version does not know")
+    return f"Image metrics scored with eval.protocol={protocol}: {words}."
+
+
 def accuracy_table(
-    runs: pd.DataFrame, dataset: str, paper: pd.DataFrame | None = None, baseline: str = "none"
+    runs: pd.DataFrame, dataset: str, paper: pd.DataFrame | None = None, baseline: str = "none",
+    protocol: str = DEFAULT_PROTOCOL,
 ) -> Table:
-    """Table I/II layout: ATE, PSNR, SSIM, LPIPS blocks of method rows; sequences plus Avg. Each
-    cell is tested against the baseline's (``mark_noise``)."""
+    """Table I/II layout: ATE, PSNR, SSIM, MS-SSIM, LPIPS blocks of method rows; sequences plus Avg.
+    Each cell is tested against the baseline's (``mark_noise``).
+
+    ``runs`` are all scored with ``protocol``. The paper's rows stand only beside runs scored with a
+    masked protocol (``splatam`` or ``released``): its base system scores masked images, where the
+    pixels without depth count as perfect, so beside whole-image scores its figures would read as a
+    gap the harness does not have. Its "SSIM" is MS-SSIM (SplaTAM's ``eval``), so it sits in the
+    MS-SSIM block. The MS-SSIM block is left out when no run has the metric and no paper row fills it.
+    """
     seqs = sequences(runs, dataset)
     found = variants(runs)
-    notes = [MARKS_NOTE]
+    notes = [MARKS_NOTE, protocol_note(protocol)]
     prows = None
     if paper is not None and _has_overlap(paper, "accuracy", dataset, seqs):
-        prows = _paper_rows(paper, "accuracy", dataset, seqs, [m.key for m in ACCURACY_METRICS])
-        notes.append("(paper) rows: the figures printed in the Pocket-SLAM paper, not bold-ranked.")
-        if prows.recomputed_avg:
-            notes.append("Paper Avg recomputed over the sequences shown.")
+        if is_masked(protocol):
+            prows = _paper_rows(paper, "accuracy", dataset, seqs, [m.key for m in ACCURACY_METRICS])
+            notes.append(f"(paper) rows: the figures printed in the Pocket-SLAM paper, not bold-ranked, beside runs "
+                         f"scored with eval.protocol={protocol}; which of the two masked protocols (splatam, "
+                         "released) produced the paper's table is not known. The paper's SSIM is MS-SSIM (its base "
+                         "system's evaluation) and stands in the MS-SSIM block.")
+            if prows.recomputed_avg:
+                notes.append("Paper Avg recomputed over the sequences shown.")
+        else:
+            notes.append(f"(paper) rows left out: these runs were scored with eval.protocol={protocol}, the paper "
+                         "with masked images (pixels without depth count as perfect); rerun with "
+                         "eval.protocol=splatam or released to set them beside it.")
     base, _ = pick_baseline(found, baseline)
     blocks = []
+    has_ms_ssim = "ms_ssim" in runs and runs["ms_ssim"].notna().any()
     for spec in ACCURACY_METRICS:
+        if spec.key == "ms_ssim" and not has_ms_ssim and prows is None:
+            continue
         block, cells, _ = _metric_block(spec, runs, seqs, found, prows)
         mark_noise(block, cells, base)
         blocks.append(block)
     notes.append(seed_note(blocks))
-    caption = f"Tracking and rendering accuracy on {dataset_name(dataset)}."
-    return Table("accuracy", dataset, [*seqs, AVG], blocks, caption, notes)
+    caption = f"Tracking and rendering accuracy on {dataset_name(dataset)} (eval.protocol={protocol})."
+    return Table("accuracy", dataset, [*seqs, AVG], blocks, caption, notes, protocol)
 
 
 def performance_table(
-    runs: pd.DataFrame, dataset: str, paper: pd.DataFrame | None = None, baseline: str = "none"
+    runs: pd.DataFrame, dataset: str, paper: pd.DataFrame | None = None, baseline: str = "none",
+    protocol: str = DEFAULT_PROTOCOL,
 ) -> tuple[Table, list[str]]:
-    """Table III/IV layout: peak memory and FPS blocks, each followed by its change vs the baseline."""
+    """Table III/IV layout: peak memory and FPS blocks, each followed by its change vs the baseline.
+
+    Memory and speed are measured in the SLAM loop, before and apart from evaluation, so the paper's
+    rows stand here whatever ``protocol`` scored the runs; the table still names it.
+    """
     seqs = sequences(runs, dataset)
     found = variants(runs)
     warnings: list[str] = []
     notes = [
         MARKS_NOTE,
+        f"Runs scored with eval.protocol={protocol}; memory and speed do not depend on it (the evaluation runs "
+        "after the SLAM loop), so (paper) rows, where asked for, stand beside any protocol.",
         "Peak memory: the most memory held at once in any keyframe window, in MiB (the CUDA allocator peak "
         "on a GPU, the peak of live torch tensors on a CPU). Memory vs baseline: peak / baseline peak - 1; "
         "FPS vs baseline: FPS / baseline FPS; their Avg is the ratio of means over the sequences both have.",
@@ -535,8 +580,22 @@ def performance_table(
         notes.append(f"No runs of baseline strategy '{baseline}': relative rows left out.")
     blocks += churn
     notes.append(seed_note(blocks))
-    caption = f"Peak memory and speed on {dataset_name(dataset)}."
-    return Table("performance", dataset, [*seqs, AVG], blocks, caption, notes), warnings
+    caption = f"Peak memory and speed on {dataset_name(dataset)} (eval.protocol={protocol})."
+    return Table("performance", dataset, [*seqs, AVG], blocks, caption, notes, protocol), warnings
+
+
+def run_protocols(runs: pd.DataFrame) -> pd.Series:
+    """Each run's ``eval_protocol`` (``bench.report.collect``); None for a run that failed before it said
+    which (it joins every protocol's table). A runs.csv from before protocols has no column: ``full``."""
+    if "eval_protocol" not in runs:
+        return pd.Series(DEFAULT_PROTOCOL, index=runs.index, dtype=object)
+    return pd.Series([None if is_missing(p) else str(p) for p in runs["eval_protocol"]], index=runs.index,
+                     dtype=object)
+
+
+def _protocol_rank(protocol: str) -> tuple[int, str]:
+    order = tuple(PROTOCOL_WORDS)
+    return (order.index(protocol) if protocol in order else len(order), protocol)
 
 
 # block title -> the metric (runs.csv column) it shows, for ``--labels`` metric selection
@@ -591,18 +650,31 @@ def build_tables(
     runs: pd.DataFrame, paper: pd.DataFrame | None = None, baseline: str = "none",
     metrics: tuple[str, ...] | None = None,
 ) -> tuple[list[Table], list[str]]:
-    """Accuracy and performance tables per dataset from finished runs (``running``/``interrupted`` left out)."""
+    """Accuracy and performance tables per dataset from finished runs (``running``/``interrupted`` left out).
+
+    A dataset whose runs were scored with several ``eval.protocol`` values gets one pair of tables per
+    protocol (named ``accuracy_kitti_splatam`` and so on), with a warning: a cell never pools runs
+    scored two ways, and a table never holds two protocols.
+    """
     done = runs[~runs["status"].isin(UNFINISHED)]
     tables: list[Table] = []
     warnings: list[str] = []
+    protocols = run_protocols(done)
     for dataset in sorted(set(done["dataset"])):
-        ds = done[done["dataset"] == dataset]
-        perf, warns = performance_table(ds, dataset, paper, baseline)
-        for table in (accuracy_table(ds, dataset, paper, baseline), perf):
-            kept = select_metrics(table, metrics)
-            if kept is not None:
-                tables.append(kept)
-        warnings.extend(warns)
+        in_dataset = done["dataset"] == dataset
+        found = sorted({p for p in protocols[in_dataset] if not is_missing(p)} or {DEFAULT_PROTOCOL},
+                       key=_protocol_rank)
+        if len(found) > 1:
+            warnings.append(f"{dataset}: runs scored with several eval.protocol values ({', '.join(found)}): "
+                            "one table per protocol; figures pool them")
+        for protocol in found:
+            ds = done[in_dataset & ((protocols == protocol) | protocols.isna())]
+            perf, warns = performance_table(ds, dataset, paper, baseline, protocol)
+            for table in (accuracy_table(ds, dataset, paper, baseline, protocol), perf):
+                kept = select_metrics(replace(table, split=len(found) > 1), metrics)
+                if kept is not None:
+                    tables.append(kept)
+            warnings.extend(warns)
         if paper is not None and not _has_overlap(paper, "accuracy", dataset, sequences(ds, dataset)):
             warnings.append(f"{dataset}: the paper has no figures for the sequences measured, no paper rows")
     return tables, warnings

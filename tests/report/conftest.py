@@ -119,14 +119,16 @@ N_USABLE = len(SWEEP) + len(EUROC) + 1  # + one 'running' run
 
 @pytest.fixture(scope="session")
 def sweep_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A Hydra-like multirun tree: DATE/TIME/N/ run dirs, plus one running and one malformed run."""
+    """A Hydra-like multirun tree: DATE/TIME/N/ run dirs, plus one running and one malformed run.
+
+    Scored with ``eval.protocol=splatam``, the masked protocol the paper's rows may stand beside."""
     root = tmp_path_factory.mktemp("multirun")
     for i, (strategy, keep, seq, seed, status, metrics) in enumerate(SWEEP):
         write_run(root / "2024-05-01" / "12-00-00" / str(i), strategy=strategy, seq=seq, seed=seed,
-                  keep_ratio=keep, status=status, **metrics)  # fmt: skip
+                  keep_ratio=keep, status=status, eval_protocol="splatam", **metrics)  # fmt: skip
     for i, (strategy, keep, seq, seed, status, metrics) in enumerate(EUROC):
         write_run(root / "2024-05-02" / "09-30-00" / str(i), strategy=strategy, seq=seq, dataset="euroc",
-                  seed=seed, keep_ratio=keep, status=status, **metrics)  # fmt: skip
+                  seed=seed, keep_ratio=keep, status=status, eval_protocol="splatam", **metrics)  # fmt: skip
     write_run(root / "2024-05-03" / "running" / "0", strategy="area", seq="00", status="running")
     bad = root / "2024-05-03" / "broken" / "0"
     bad.mkdir(parents=True)

@@ -9,6 +9,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from bench.report.collect import collect
+from bench.report.paper import load_paper_tables
 from bench.report.render import format_cell, to_markdown
 from bench.report.tables import Table, build_tables
 
@@ -190,6 +192,57 @@ def test_paper_rows_sit_beside_measured_rows(report) -> None:
     assert not any(c.bold for r in acc.blocks[0].rows if r.paper for c in r.cells)
     assert "(paper) LSG-SLAM" in (report.out / "tables.md").read_text()
     assert r"\textit{(paper) LSG-SLAM}" in (report.out / "accuracy_kitti.tex").read_text()
+
+
+def test_paper_ssim_stands_beside_our_ms_ssim(report) -> None:
+    """The paper's "SSIM" is its base system's MS-SSIM: it fills the MS-SSIM block, not ours."""
+    acc = table(report, "accuracy", "kitti")
+    titles = [b.title for b in acc.blocks]
+    assert titles == ["ATE [m]", "PSNR [dB]", "SSIM", "MS-SSIM", "LPIPS"]
+    paper = pd.read_csv(resources.files("bench.report").joinpath("paper_tables.csv").open(), dtype=str)
+    printed = paper[(paper.table == "accuracy") & (paper.dataset == "kitti") & (paper.method == "LSG-SLAM")
+                    & (paper.metric == "SSIM") & (paper.sequence == "00")]["value"].item()  # fmt: skip
+    assert entry(acc, "MS-SSIM", "(paper) LSG-SLAM", "00") == printed
+    assert not any(r.paper for r in next(b for b in acc.blocks if b.title == "SSIM").rows)
+    assert any("eval.protocol=splatam" in n for n in acc.notes) and "splatam" in acc.caption
+
+
+def test_full_protocol_runs_stand_without_paper_rows(tmp_path, make_run) -> None:
+    """Runs scored on the whole image (and runs from before protocols) get no paper accuracy rows, and a
+    line saying why; the paper's memory rows stay, since the protocol does not touch them."""
+    make_run(tmp_path / "0", strategy="none", seq="00", keep_ratio=None, eval_protocol="full")
+    make_run(tmp_path / "1", strategy="pocket", seq="00")  # written before eval.protocol existed
+    runs = collect([tmp_path]).runs
+    assert list(runs["eval_protocol"]) == ["full", "full"]
+    tables, _ = build_tables(runs, load_paper_tables())
+    acc = next(t for t in tables if t.kind == "accuracy")
+    assert not any(r.paper for b in acc.blocks for r in b.rows)
+    assert "MS-SSIM" not in [b.title for b in acc.blocks]  # no run has it, no paper row fills it
+    why = [n for n in acc.notes if n.startswith("(paper) rows left out")]
+    assert len(why) == 1 and "eval.protocol=full" in why[0]
+    text = to_markdown(acc)
+    assert "(paper)" not in text.replace("(paper) rows left out", "") and "eval.protocol=full" in text
+    perf = next(t for t in tables if t.kind == "performance")
+    assert any(r.paper for b in perf.blocks for r in b.rows) and "eval.protocol=full" in perf.caption
+
+
+def test_mixed_protocols_get_a_table_each(tmp_path, make_run) -> None:
+    for i, protocol in enumerate(("full", "splatam", "released")):
+        make_run(tmp_path / f"none_{i}", strategy="none", seq="00", keep_ratio=None, eval_protocol=protocol,
+                 psnr_db=20.0 + i, ms_ssim=0.8)
+    runs = collect([tmp_path]).runs
+    tables, warnings = build_tables(runs, load_paper_tables())
+    names = [t.name for t in tables]
+    assert names == [f"{kind}_kitti_{p}" for p in ("full", "splatam", "released") for kind in ("accuracy",
+                                                                                                 "performance")]
+    for t in tables:  # one protocol per table, every cell one run: nothing pooled across protocols
+        assert t.protocol in t.name and f"eval.protocol={t.protocol}" in t.caption
+    for t in (t for t in tables if t.kind == "accuracy"):
+        psnr_db = 20.0 + ("full", "splatam", "released").index(t.protocol)
+        assert entry(t, "PSNR [dB]", "LSG-SLAM baseline", "00") == f"{psnr_db:.2f}"
+        assert any(r.paper for b in t.blocks for r in b.rows) == (t.protocol != "full")
+    assert any("several eval.protocol values (full, splatam, released)" in w for w in warnings)
+    assert not any("duplicate run" in w for w in collect([tmp_path]).warnings)
 
 
 def test_no_paper_rows_without_the_flag(report) -> None:
