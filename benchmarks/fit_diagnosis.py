@@ -121,6 +121,7 @@ def main() -> None:
                 kf_rows.append((res.keyframe_index, i, d["kf_psnr_db"], d["kf_psnr_depth_db"],
                                 d["kf_psnr_nodepth_db"], masked, len(system.map)))
         wall = time.perf_counter() - t0
+        system.refine(cfg.slam.refine_iters)  # as a run does before it evaluates (0 = none)
         stats = {"kf": [], "between": []}
         with torch.no_grad():
             kf_frames = {kf.index for kf in system.keyframes}
