@@ -18,7 +18,8 @@ def _fmt(v, spec: str) -> str:
 
 def summarize(run: Path) -> str:
     """The line for one run dir (metrics.json and keyframes.csv; what is missing reads n/a)."""
-    m = json.loads((run / "metrics.json").read_text()) if (run / "metrics.json").is_file() else {}
+    doc = json.loads((run / "metrics.json").read_text()) if (run / "metrics.json").is_file() else {}
+    m = {"status": doc.get("status"), **(doc.get("metrics") or {})}
     rows = list(csv.DictReader((run / "keyframes.csv").open())) if (run / "keyframes.csv").is_file() else []
     col = "cuda_alloc_peak_mib" if rows and rows[0].get("cuda_alloc_peak_mib") else "torch_live_peak_mib"
     picks = [rows[i] for i in sorted({0, len(rows) // 2, len(rows) - 1})] if rows else []
