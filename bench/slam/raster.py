@@ -247,8 +247,10 @@ def rasterize(
     if backend == "gsplat":
         from bench.slam.raster_gsplat import rasterize_gsplat
 
-        return rasterize_gsplat(means, log_scales, quats, opacities, colors, w2c, K, width, height, bg, near_m,
-                                stats, depth_far_m)
+        z = means @ w2c[2, :3] + w2c[2, 3]  # [N] camera z of every Gaussian
+        return RasterOutput(**rasterize_gsplat(means, log_scales, quats, opacities, colors, z,
+                                               _paint_depth(z, depth_far_m), w2c, K, width, height, bg, near_m,
+                                               stats))
     if backend == "fused":
         ff = _front_fused(means, log_scales, quats, w2c, K, width, height, near_m)
         return _render_fused(ff, opacities, colors, depth_far_m, bg, width, height, stats)

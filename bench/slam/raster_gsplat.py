@@ -39,8 +39,8 @@ import math
 
 import torch
 
-from bench.slam.raster import ALPHA_MIN, TILE_PX, RasterOutput, _paint_depth
-
+TILE_PX = 16  # gsplat's tile_size here: the reference's tile, so tile ids and tiles_xy mean the same
+ALPHA_MIN = 1.0 / 255.0  # gsplat's ALPHA_THRESHOLD (Common.h)
 GSPLAT_ALPHA_MAX = 0.999  # gsplat's clamp (RasterizeToPixels3DGSFwd.cu)
 LOG_T_STOP = math.log(1e-4)  # gsplat stops a pixel before the Gaussian that brings T to 1e-4 or below
 STATS_CHUNK_ELEMS = 1 << 22  # pair x pixel elements per statistics chunk
@@ -64,9 +64,13 @@ def unavailable_reason() -> str | None:
     return None
 
 
-def rasterize_gsplat(means, log_scales, quats, opacities, colors, w2c, K, width, height, bg, near_m, stats,
-                     depth_far_m) -> RasterOutput:
-    """Render with gsplat (CUDA tensors); arguments as ``bench.slam.raster.rasterize``."""
+def rasterize_gsplat(means, log_scales, quats, opacities, colors, z, z_paint, w2c, K, width, height, bg, near_m,
+                     stats) -> dict:
+    """Render with gsplat (CUDA tensors): the fields of ``RasterOutput``, as a dict.
+
+    Arguments as ``bench.slam.raster.rasterize``, plus ``z`` [N], the camera z of every Gaussian, and
+    ``z_paint`` [N], the depth each paints; both come from the caller, which keeps this module free
+    of imports from ``raster`` (that imports it)."""
     from gsplat import fully_fused_projection, isect_offset_encode, isect_tiles, rasterize_to_pixels
 
     n = means.shape[0]
@@ -79,7 +83,6 @@ def rasterize_gsplat(means, log_scales, quats, opacities, colors, w2c, K, width,
         means, None, quats, torch.exp(log_scales), w2c[None], (K + half)[None], width, height, eps2d=0.3,
         near_plane=near_m, far_plane=1e10, packed=True, opacities=opacities.detach())
     gid = gids.long()  # [V] the Gaussians gsplat renders
-    z = means @ w2c[2, :3] + w2c[2, 3]  # [N] camera z of every Gaussian, as the reference returns it
     # [N, 2] on the reference's pixel grid; the rasterizer reads it back through ``gid``, so the loss
     # flows through this tensor and a strategy's retain_grad on it sees dL/d mean2d
     means2d = torch.zeros(n, 2, device=device, dtype=dtype).index_put((gid,), m2_g - 0.5)
@@ -109,12 +112,12 @@ def rasterize_gsplat(means, log_scales, quats, opacities, colors, w2c, K, width,
             image_ids=torch.zeros_like(gids), gaussian_ids=gids)
         offsets = isect_offset_encode(isect_ids, 1, tiles_x, tiles_y)  # [1, tiles_y, tiles_x]
     if flatten_ids is None or not flatten_ids.numel():  # nothing in view: constant images, no gradient
-        return RasterOutput(
+        return dict(
             color=bg.expand(height, width, 3).clone(), depth=torch.zeros(height, width, device=device, dtype=dtype),
             alpha=torch.zeros(height, width, device=device, dtype=dtype), means2d=means2d, cov2d=cov2d, depths=z,
             radius_px=radius_px, tile_id=tile_id, tiles_xy=(tiles_x, tiles_y), coverage=coverage,
             hit_count=hit_count, max_weight=max_weight)
-    feat = torch.cat([colors, _paint_depth(z, depth_far_m)[:, None]], 1)[gid]  # [V, 4] colour, painted depth
+    feat = torch.cat([colors, z_paint[:, None]], 1)[gid]  # [V, 4] colour, painted depth
     op_v = opacities[gid]
     render, alphas = rasterize_to_pixels(
         means2d[gid] + 0.5, conics, feat.contiguous(), op_v.contiguous(), width, height, TILE_PX, offsets,
@@ -127,7 +130,7 @@ def rasterize_gsplat(means, log_scales, quats, opacities, colors, w2c, K, width,
                 means2d[gid].detach(), conics.detach(), op_v.detach(), flatten_ids.long(), per_tile, tiles_x,
                 width, height, GSPLAT_ALPHA_MAX, strict_stop=True)
             coverage[gid], hit_count[gid], max_weight[gid] = cov_v.to(dtype), hits_v, maxw_v.to(dtype)
-    return RasterOutput(
+    return dict(
         color=render[..., :3] + (1.0 - alpha)[..., None] * bg,
         depth=render[..., 3],
         alpha=alpha,

@@ -80,6 +80,12 @@ def assert_agree(ref, got, ref_grads, got_grads):
         assert rel <= GRAD_REL and cos >= GRAD_COS, f"{name}: relative difference {rel:.3g}, cosine {cos:.6f}"
 
 
+def test_same_tile_and_threshold_as_the_reference():
+    from bench.slam import raster, raster_gsplat
+
+    assert raster_gsplat.TILE_PX == raster.TILE_PX and raster_gsplat.ALPHA_MIN == raster.ALPHA_MIN
+
+
 def test_gsplat_on_cpu_is_one_config_error():
     with pytest.raises(ConfigError, match="runs on cuda tensors"):
         resolve_backend("gsplat", torch.device("cpu"))
