@@ -43,7 +43,7 @@ TILE_PX = 16  # gsplat's tile_size here: the reference's tile, so tile ids and t
 ALPHA_MIN = 1.0 / 255.0  # gsplat's ALPHA_THRESHOLD (Common.h)
 GSPLAT_ALPHA_MAX = 0.999  # gsplat's clamp (RasterizeToPixels3DGSFwd.cu)
 LOG_T_STOP = math.log(1e-4)  # gsplat stops a pixel before the Gaussian that brings T to 1e-4 or below
-STATS_CHUNK_ELEMS = 1 << 22  # pair x pixel elements per statistics chunk
+STATS_CHUNK_ELEMS = 1 << 18  # pair x pixel elements per statistics chunk: its temporaries stay a few tens of MiB
 
 
 @functools.lru_cache(maxsize=1)
@@ -181,9 +181,11 @@ def pair_stats(
     n_pairs = pair_gid.numel()
     if n_pairs == 0:
         return coverage.float(), hits, maxw
-    ly, lx = torch.meshgrid(torch.arange(TILE_PX, device=dev), torch.arange(TILE_PX, device=dev), indexing="ij")
+    ly, lx = torch.meshgrid(torch.arange(TILE_PX, device=dev, dtype=torch.int32),
+                            torch.arange(TILE_PX, device=dev, dtype=torch.int32), indexing="ij")
     lx, ly = lx.reshape(1, -1), ly.reshape(1, -1)  # [1, 256]
-    tile_of_pair = torch.repeat_interleave(torch.arange(per_tile.numel(), device=dev), per_tile)  # [P]
+    tile_of_pair = torch.repeat_interleave(torch.arange(per_tile.numel(), device=dev, dtype=torch.int32),
+                                           per_tile)  # [P]
     ends = torch.cumsum(per_tile, 0).tolist()
     starts = [e - k for e, k in zip(ends, per_tile.tolist(), strict=True)]
     budget = max(1, STATS_CHUNK_ELEMS // (TILE_PX * TILE_PX))
@@ -200,11 +202,12 @@ def pair_stats(
             continue
         g = pair_gid[s:e]  # [p]
         tile = tile_of_pair[s:e]
-        px = (tile % tiles_x)[:, None] * TILE_PX + lx  # [p, 256]
+        px = (tile % tiles_x)[:, None] * TILE_PX + lx  # [p, 256] int32
         py = (tile // tiles_x)[:, None] * TILE_PX + ly
         valid = (px < width) & (py < height)
-        dx = px.to(means2d.dtype) - means2d[g, 0:1]
-        dy = py.to(means2d.dtype) - means2d[g, 1:2]
+        dx = px - means2d[g, 0:1]  # [p, 256] float
+        dy = py - means2d[g, 1:2]
+        del px, py
         a, b, c = conic[g].unbind(-1)
         power = -0.5 * (a[:, None] * dx * dx + c[:, None] * dy * dy) - b[:, None] * dx * dy
         raw = opacity[g][:, None] * torch.exp(power)  # [p, 256]
@@ -212,9 +215,9 @@ def pair_stats(
         ok = (raw >= ALPHA_MIN) & valid
         alpha = torch.where(ok, raw.clamp(max=alpha_max), torch.zeros_like(raw))
         log1m = torch.log1p(-alpha.double())  # [p, 256]
-        cum = torch.cumsum(log1m, 0)
         first = torch.searchsorted(tile.contiguous(), tile, right=False)  # [p] first pair of the same tile
-        log_t = cum - (cum[first] - log1m[first])  # inclusive log-transmittance inside each tile
+        log_t = torch.cumsum(log1m, 0)
+        log_t -= (log_t - log1m)[first]  # inclusive log-transmittance inside each tile
         keep = ok & ((log_t > log_stop) if strict_stop else (log_t >= log_stop))
         w = torch.where(keep, alpha * torch.exp(log_t - log1m).float(), torch.zeros_like(alpha))
         hits.index_add_(0, g, keep.sum(1))
