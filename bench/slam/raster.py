@@ -84,21 +84,36 @@ def project(
     return means2d, cov2d, z
 
 
-BACKENDS = ("auto", "fused", "torch")
+BACKENDS = ("auto", "fused", "torch", "gsplat")
 
 
 def resolve_backend(backend: str, device: torch.device) -> str:
-    """``auto`` is the compiled ``fused`` backend on CPU and the torch reference on CUDA.
+    """``auto`` is the compiled ``fused`` backend on CPU; on CUDA, ``gsplat`` where it can run, else
+    the torch reference.
 
-    CUDA keeps the torch backend until a fused CUDA path has been verified on a GPU.
+    ``gsplat`` (``bench/slam/raster_gsplat.py``) runs on CUDA tensors only; asking for it where it
+    cannot run is a config error that says why.
     """
     if backend not in BACKENDS:
         raise ConfigError(f"raster backend must be one of {', '.join(BACKENDS)}; found '{backend}'")
     if backend == "auto":
-        return "fused" if device.type == "cpu" else "torch"
+        if device.type == "cpu":
+            return "fused"
+        from bench.slam.raster_gsplat import unavailable_reason
+
+        return "gsplat" if unavailable_reason() is None else "torch"
     if backend == "fused" and device.type != "cpu":
         raise ConfigError(f"the fused rasterizer runs on cpu tensors; found device '{device}' "
                           "(use slam.raster_backend=torch or auto there)")
+    if backend == "gsplat":
+        if device.type != "cuda":
+            raise ConfigError(f"slam.raster_backend=gsplat runs on cuda tensors; found device '{device}' "
+                              "(use slam.raster_backend=fused or auto there)")
+        from bench.slam.raster_gsplat import unavailable_reason
+
+        reason = unavailable_reason()
+        if reason is not None:
+            raise ConfigError(f"slam.raster_backend=gsplat: {reason}")
     return backend
 
 
@@ -222,11 +237,20 @@ def rasterize(
     would otherwise shift its rendered depth by 1.2 m and bias depth-supervised tracking.
 
     ``backend``: ``torch`` (the dense reference that autograd differentiates), ``fused`` (compiled
-    CPU kernels, ``bench/slam/raster_fused.py``) or ``auto`` (see ``resolve_backend``). Both return
-    the same outputs and gradients up to float32 rounding.
+    CPU kernels, ``bench/slam/raster_fused.py``), ``gsplat`` (CUDA, ``bench/slam/raster_gsplat.py``)
+    or ``auto`` (see ``resolve_backend``). ``torch`` and ``fused`` return the same outputs and
+    gradients up to float32 rounding; ``gsplat`` follows gsplat's footprint and clamp conventions
+    (its module docstring lists them).
     """
     backend = resolve_backend(backend, means.device)
     bg = torch.zeros(3, device=means.device, dtype=means.dtype) if background is None else background
+    if backend == "gsplat":
+        from bench.slam.raster_gsplat import rasterize_gsplat
+
+        z = means @ w2c[2, :3] + w2c[2, 3]  # [N] camera z of every Gaussian
+        return RasterOutput(**rasterize_gsplat(means, log_scales, quats, opacities, colors, z,
+                                               _paint_depth(z, depth_far_m), w2c, K, width, height, bg, near_m,
+                                               stats))
     if backend == "fused":
         ff = _front_fused(means, log_scales, quats, w2c, K, width, height, near_m)
         return _render_fused(ff, opacities, colors, depth_far_m, bg, width, height, stats)

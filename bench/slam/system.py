@@ -80,8 +80,8 @@ class SlamConfig:
     depth_loss_max_m: float = 30.0  # far pixels (sky, distant road) only constrain colour
     depth_far_m: float | None = 60.0  # Gaussians beyond this add no depth (see rasterize); None = all do
     depth_normalized: bool = False  # compare depth / silhouette (unbiased where coverage < 1)
-    # compositing backend (bench/slam/raster.py): auto = the compiled "fused" kernels on CPU, the
-    # "torch" reference on CUDA; both give the same images and gradients up to float32 rounding
+    # compositing backend (bench/slam/raster.py): auto = the compiled "fused" kernels on CPU; on CUDA
+    # "gsplat" where it is installed (bench/slam/raster_gsplat.py), else the "torch" reference
     raster_backend: str = "auto"
     mapping_iters: int = 100  # paper: 100 per keyframe
     # when keyframes get those iterations: "keyframes" = every keyframe (the paper's text); "first" = the

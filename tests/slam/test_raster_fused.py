@@ -241,7 +241,9 @@ def test_peak_memory_grows_with_gaussian_count():
 
 def test_backend_choice():
     assert resolve_backend("auto", torch.device("cpu")) == "fused"
-    assert resolve_backend("auto", torch.device("cuda")) == "torch"
+    from bench.slam.raster_gsplat import unavailable_reason
+
+    assert resolve_backend("auto", torch.device("cuda")) == ("torch" if unavailable_reason() else "gsplat")
     with pytest.raises(ConfigError, match="found 'cuda_fast'"):
         resolve_backend("cuda_fast", torch.device("cpu"))
     with pytest.raises(ConfigError, match="runs on cpu tensors"):
