@@ -112,3 +112,14 @@ def test_keyframe_rows_carry_the_fit_of_their_own_render(seq):
         pred = s.render(torch.eye(4)).color.clamp(0, 1)
     mse = float((pred - seq[0].rgb).pow(2).mean().double())
     assert d["kf_psnr_db"] == pytest.approx(-10 * np.log10(mse), abs=1e-3)
+
+
+def test_faithful_preset_changes_only_what_it_names():
+    from bench.cli import compose
+    from bench.validate import validate
+
+    default = validate(compose([])).config.slam
+    faithful = validate(compose(["slam=faithful"])).config.slam
+    changed = {k for k in vars(default) if getattr(default, k) != getattr(faithful, k)}
+    assert changed == {"name", "densify_stride", "lambda_ssim_map", "feature_weight"}
+    assert (faithful.densify_stride, faithful.lambda_ssim_map, faithful.feature_weight) == (1, 0.2, 2.0)
