@@ -269,9 +269,12 @@ def precheck(argv: list[str]) -> Built | None:
         raise ConfigError(composition_error(exc, job)) from None
     if multirun:
         return None  # each job is validated where it runs (our sweeper, bench.run) and recorded if bad
+    from bench.run import resolve_device
     from bench.validate import validate
 
-    return validate(cfg)
+    built = validate(cfg)
+    resolve_device(built.config.device)  # a single run runs here: this machine must have the device
+    return built
 
 
 @hydra.main(version_base="1.3", config_path=f"pkg://{CONF_PKG}", config_name="config")

@@ -43,7 +43,7 @@ from bench.keys import dataset_name, run_keys
 from bench.measure import MemoryProbe, PhaseTimer
 from bench.metrics.trajectory import TumAppender
 from bench.progress import Phase
-from bench.record import is_leftover, owner, record_failed, write_json
+from bench.record import is_leftover, owner, read_record, record_refusal, write_json, write_text
 from bench.resume import redo_reason
 from bench.signals import Interrupted, Preemption, deferred_signals, held_preemption, raise_on_signals
 from bench.slam.se3 import inverse
@@ -119,26 +119,21 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: B
             built = validate(cfg)
     except ConfigError as exc:  # in a sweep the job is recorded; a single run was refused by the CLI already
         make_out_dir(out)
-        record_failed(out, str(exc), run_keys(cfg))
-        return RunResult("failed", out, {}, str(exc))
+        return _refused(out, str(exc), run_keys(cfg))
     conf = built.config  # below here only dataclasses travel
     make_out_dir(out)
     stored = _previous(out)
     keys = run_keys(conf, built.tree)
-    record: dict[str, Any] = {
-        "status": "running", "error": None, "run": keys, "determinism": {}, "metrics": {}, "provenance": {},
-        "owner": owner(),
-    }  # fmt: skip
     try:
         device = resolve_device(conf.device)
         seq = open_seq(conf)  # the loaders draw from their own seeded generators, not the global ones
     except BenchError as exc:  # bad data found before any work
-        (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
-        record.update(status="failed", error=str(exc))
-        record.pop("owner")
-        write_json(metrics_path, record)
-        return RunResult("failed", out, {}, str(exc))
-    keys = record["run"] = run_keys(conf, built.tree, seq)
+        return _refused(out, str(exc), keys, OmegaConf.to_yaml(cfg, resolve=True))
+    keys = run_keys(conf, built.tree, seq)
+    record: dict[str, Any] = {
+        "status": "running", "error": None, "run": keys, "determinism": {}, "metrics": {}, "provenance": {},
+        "owner": owner(),
+    }  # fmt: skip
     start: dict[str, Any] | None = None  # the checkpoint a resumed run starts from
     level = logging.INFO  # of the redo line: a warning when a checkpoint was there but unusable
     if conf.resume:
@@ -154,7 +149,7 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: B
             log.info("resuming %s from frame %d (checkpoint of keyframe %d)", out, start["frame"], start["keyframe"])
         elif stored is not None:
             log.log(level, "redoing %s: %s", out, reason)
-    (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    write_text(out / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
     record["checkpoint"] = {"every": conf.checkpoint.every, "written": 0, "mib_last": None, "write_s_total": 0.0,
                             "resumed_from_frames": []}  # fmt: skip
     if start is None:
@@ -203,6 +198,16 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: B
     return RunResult(status, out, metrics, error)
 
 
+def _refused(out: Path, error: str, keys: dict[str, Any], config_yaml: str | None = None) -> RunResult:
+    """A run refused before any work: recorded ``failed``, unless ``out`` holds a previous run's
+    record to keep (finished, resumable or live), which a refusal for a passing reason (data briefly
+    unreachable, no CUDA on this node) must not replace."""
+    kept = record_refusal(out, error, keys, config_yaml)
+    if kept is not None:
+        error = f"{error} (nothing written: {out} keeps its {kept} record)"
+    return RunResult("failed", out, {}, error)
+
+
 def _config_files() -> dict[str, str] | None:
     """The file each group choice came from (a user's ./conf or the package), when Hydra composed the run."""
     from hydra.core.hydra_config import HydraConfig
@@ -217,11 +222,8 @@ def flushed_rows(out: Path) -> dict[str, int]:
 def _previous(out: Path) -> dict[str, Any] | None:
     """The metrics.json a previous run left here; a ``running`` one whose process died is marked interrupted."""
     path = out / schema.METRICS_FILE
-    try:
-        stored = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError):
-        return None
-    if not isinstance(stored, dict):
+    stored = read_record(out)
+    if stored is None:
         return None
     if is_leftover(stored):
         who = stored.get("owner") or {}

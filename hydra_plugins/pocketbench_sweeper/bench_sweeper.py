@@ -25,7 +25,7 @@ from hydra.errors import HydraException
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from bench.record import record_failed
+from bench.record import record_refusal
 
 log = logging.getLogger(__name__)
 _OVERRIDE_DIRNAME = "${hydra:job.override_dirname}"
@@ -88,7 +88,7 @@ class BenchSweeper(BasicSweeper):
             message = composition_error(exc, list(overrides))
         log.info("\t#%d : %s", job_idx, " ".join(overrides))
         out = self._job_dir(overrides, job_idx)
-        record_failed(out, message, _run_keys(self.config, overrides))
+        record_refusal(out, message, _run_keys(self.config, overrides))
         print(f"error: {message}", file=sys.stderr)
         return False
 
