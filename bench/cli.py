@@ -260,6 +260,8 @@ def precheck(argv: list[str]) -> Built | None:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
+    check_study(job)
+    swept = job
     try:
         if multirun:  # what Hydra composes before any job: the command line without its sweeps
             parsed = OverridesParser.create().parse_overrides(job)
@@ -268,6 +270,7 @@ def precheck(argv: list[str]) -> Built | None:
     except (HydraException, OmegaConfBaseException) as exc:
         raise ConfigError(composition_error(exc, job)) from None
     if multirun:
+        shared_refusal(job, swept, hyd)
         return None  # each job is validated where it runs (our sweeper, bench.run) and recorded if bad
     from bench.run import resolve_device
     from bench.validate import validate
@@ -275,6 +278,46 @@ def precheck(argv: list[str]) -> Built | None:
     built = validate(cfg)
     resolve_device(built.config.device)  # a single run runs here: this machine must have the device
     return built
+
+
+def check_study(job: list[str]) -> None:
+    """``+study=NAME`` names a study file."""
+    name = _value(job, "study")
+    if name is not None:
+        from bench.study import check_name
+
+        check_name(name)
+
+
+def shared_refusal(fixed: list[str], job: list[str], hyd: list[str]) -> None:
+    """Refuse a sweep whose every job is refused for one and the same reason (a bad setting the
+    sweep does not vary, ``threads=0 seed=0,1``): one line before any run dir, rather than a dir
+    and a ``failed`` record per job. Jobs refused for different reasons still make a sweep that
+    records each (``seed=abc,-3``). Only the first job is checked unless it is refused. ``fixed``:
+    the command line less its sweeps, ``job`` with them, ``hyd`` its ``hydra.*`` overrides."""
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    from bench.sweep import planned
+    from bench.validate import validate
+
+    def refusal(overrides: list[str]) -> str | None:
+        task = [o for o in overrides if not o.lstrip("+~").startswith("hydra")]
+        try:
+            validate(compose(task))
+        except (HydraException, OmegaConfBaseException) as exc:
+            return composition_error(exc, task)
+        except BenchError as exc:
+            return str(exc)
+        return None
+
+    try:
+        jobs = planned(compose([*fixed, *hyd], hydra=True), job) or [[]]
+    except (HydraException, OmegaConfBaseException, ValueError):
+        return  # a sweep syntax of another sweeper's: its jobs are checked where they run
+    first = refusal(jobs[0])
+    if first is not None and all(refusal(j) == first for j in jobs[1:]):
+        raise ConfigError(first if len(jobs) == 1 else f"{first} (in all {len(jobs)} jobs of the sweep)")
 
 
 @hydra.main(version_base="1.3", config_path=f"pkg://{CONF_PKG}", config_name="config")
@@ -318,8 +361,9 @@ def _hydra_main(cfg: DictConfig) -> None:
 def _record(hc, status: str, out_dir: object, metrics: dict, wall_s: float | None) -> None:
     """One finished sweep run into the sweep's job record, and the sweep progress line."""
     from bench.summary import record_job
+    from bench.sweep import job_name
 
-    job = {"num": hc.job.num, "name": hc.job.override_dirname, "status": status, "dir": str(out_dir),
+    job = {"num": hc.job.num, "name": job_name(list(hc.overrides.task)), "status": status, "dir": str(out_dir),
            "metrics": dict(metrics), "wall_s": wall_s}  # fmt: skip
     print(record_job(hc.sweep.dir, job), file=sys.stderr, flush=True)
 
