@@ -281,12 +281,12 @@ def precheck(argv: list[str]) -> Built | None:
 
 
 def check_study(job: list[str]) -> None:
-    """``+study=NAME`` names a study file."""
+    """``+study=NAME`` names a study file that holds a study: one line if not (Hydra's answers run to pages)."""
     name = _value(job, "study")
     if name is not None:
-        from bench.study import check_name
+        from bench.study import load
 
-        check_name(name)
+        load(name)  # the file, its YAML, its sweeps and their overrides
 
 
 def shared_refusal(fixed: list[str], job: list[str], hyd: list[str]) -> None:

@@ -126,10 +126,16 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: B
     keys = run_keys(conf, built.tree)
     try:
         device = resolve_device(conf.device)
+        ckpt.check_files(out)
         seq = open_seq(conf)  # the loaders draw from their own seeded generators, not the global ones
     except BenchError as exc:  # bad data found before any work
         return _refused(out, str(exc), keys, OmegaConf.to_yaml(cfg, resolve=True))
     keys = run_keys(conf, built.tree, seq)
+    missing = [name for name, digest in keys["inputs"].items() if digest == "missing"]
+    if missing:  # the fingerprint found them gone: refuse now, not at the frame that reads one
+        more = f" and {len(missing) - 1} more" if len(missing) > 1 else ""
+        return _refused(out, f"input files: expected every file the dataset lists, found {missing[0]} missing{more}",
+                        keys, OmegaConf.to_yaml(cfg, resolve=True))
     record: dict[str, Any] = {
         "status": "running", "error": None, "run": keys, "determinism": {}, "metrics": {}, "provenance": {},
         "owner": owner(),

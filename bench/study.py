@@ -65,11 +65,17 @@ def expand(study: Study, extra: Sequence[str] = ()) -> list[tuple[str, list[str]
     products sharing one sweep dir)."""
     from hydra._internal.core_plugins.basic_sweeper import BasicSweeper  # Hydra's own expansion (hydra-core 1.3)
     from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
 
     parser = OverridesParser.create()
     jobs = []
     for sweep, overrides in study.sweeps.items():
-        parsed = parser.parse_overrides([f"sweep_name={sweep}", *overrides, *extra])
+        try:
+            parsed = parser.parse_overrides([f"sweep_name={sweep}", *overrides, *extra])
+        except HydraException as exc:
+            found = str(exc).strip().splitlines()[0]
+            raise ConfigError(f"study '{study.name}' sweep '{sweep}': expected overrides as on a command line, "
+                              f"found: {found}") from None
         for job in BasicSweeper.split_arguments(parsed, None)[0]:
             jobs.append((next(o.split("=", 1)[1] for o in job if o.startswith("sweep_name=")), job))
     return jobs
@@ -91,7 +97,18 @@ def load(name: str, extra: Sequence[str] = ()) -> tuple[Study, list[Job]]:
     from bench.sweep import job_dir, own_dirs
 
     check_name(name)
-    cfg = compose([f"+{GROUP}={name}"], hydra=True)
+    try:
+        cfg = compose([f"+{GROUP}={name}"], hydra=True)
+    except Exception as exc:  # YAML syntax (yaml's own errors), composition (Hydra's, OmegaConf's)
+        from hydra.errors import HydraException
+        from omegaconf.errors import OmegaConfBaseException
+        from yaml import YAMLError
+
+        if not isinstance(exc, (HydraException, OmegaConfBaseException, YAMLError)):
+            raise
+        found = " ".join(str(exc).split())[:200]
+        raise ConfigError(f"study '{name}': expected a study file (hydra.sweeper.study with its sweeps) in "
+                          f"conf/study/{name}.yaml, found: {found}") from None
     study = parse(name, OmegaConf.select(cfg, "hydra.sweeper.study"))
     expanded = expand(study, extra)
     dirs = own_dirs(cfg, [job for _, job in expanded])
@@ -103,8 +120,9 @@ def load(name: str, extra: Sequence[str] = ()) -> tuple[Study, list[Job]]:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if not argv or argv[0].startswith("-"):
-        print("usage: python -m bench.study NAME [OVERRIDE ...]  (lists the runs of conf/study/NAME.yaml)",
-              file=sys.stderr)
+        found = f"'{argv[0]}'" if argv else "nothing"
+        print(f"error: expected a study name (python -m bench.study NAME [OVERRIDE ...] lists the runs of "
+              f"conf/study/NAME.yaml), found {found}", file=sys.stderr)
         return 2
     try:
         study, jobs = load(argv[0], argv[1:])
