@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import os
 import re
 import sys
 import tempfile
@@ -375,21 +374,7 @@ register_configs()
 _PRECHECKED: list[Built] = []
 
 
-def _quiet_openmp_in_workers(argv: list[str]) -> None:
-    """A sweep on this machine runs jobs side by side (hydra/launcher=local, submitit_local, or a
-    study file that picks them): each job's OpenMP pools then sleep when idle instead of spinning.
-
-    A spinning worker holds a core that the job beside it needs; two threads=1 scale-study runs
-    side by side ran several times slower for it (README, "Speed"). Workers are new processes, so
-    the policy set here reaches their OpenMP runtimes; an OMP_WAIT_POLICY of the user's wins, and
-    a SLURM sweep (one job per node) is left alone."""
-    if not any(a in ("-m", "--multirun") for a in argv) or any("launcher=slurm" in a for a in argv):
-        return
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
-
 def main() -> int:
-    _quiet_openmp_in_workers(sys.argv[1:])
     try:
         check_overrides(sys.argv[1:])
         built = precheck(sys.argv[1:])
