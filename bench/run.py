@@ -254,6 +254,8 @@ def _execute(built: Built, out: Path, device: torch.device, record: dict[str, An
     record["metrics"] = metrics = {"num_frames": 0, "num_keyframes": 0}
     if start is not None:
         restore(parts, start)
+        if parts.viz is not None:  # the stopped run's pictures up to the checkpoint are this run's too
+            parts.viz.written = [p for p in sorted(out.glob("pruned_kf*.npz")) if _kf_of(p) <= start["keyframe"]]
     drive = drive_frames(cfg, parts, out, record, start, preempt)
     with deferred_signals() if drive.stop is not None else contextlib.nullcontext():
         metrics.update(finish(cfg, parts, drive, out, device))
@@ -348,6 +350,12 @@ def restore(parts: Parts, start: dict[str, Any]) -> None:
     done = json.loads(start["drive"]["json"])
     parts.timer.restore(done["phase_s"], done["phase_n"])
     ckpt.set_global_rng_state(start["rng"])  # last: nothing after it draws before the next frame
+
+
+def _kf_of(path: Path) -> int:
+    """The keyframe a ``pruned_kfNNN.npz`` belongs to (-1 for a name not of that form)."""
+    digits = path.stem.removeprefix("pruned_kf")
+    return int(digits) if digits.isdigit() else -1
 
 
 def _inner(strategy: Strategy) -> Strategy:
