@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from bench.errors import BenchError
 from bench.resume import redo_reason
 from bench.typed import check_rules, setting
 
@@ -60,15 +61,36 @@ class Written:
     write_s: float
 
 
+class CheckpointError(BenchError):
+    """A checkpoint cannot be written where it belongs (a directory in its place, a full disk)."""
+
+
+def check_files(out: Path) -> None:
+    """One line unless each checkpoint path of ``out`` is a plain file or absent: checked before a run
+    starts, as a directory there would fail the first write after frames of work."""
+    for name in (*FILES, FILES[0] + ".tmp"):
+        path = out / name
+        if path.exists() and not path.is_file():
+            raise CheckpointError(f"checkpoint: expected a file or nothing at {path}, found a directory")
+
+
 def save(out: Path, payload: dict[str, Any], keep: int = 2) -> Written:
-    """Write ``payload`` as the newest checkpoint of run dir ``out``; the older one is rotated or dropped."""
+    """Write ``payload`` as the newest checkpoint of run dir ``out``; the older one is rotated or dropped.
+
+    A failed write (a full disk) leaves the checkpoints as they were and no temporary file, and is
+    one ``CheckpointError`` line: the run then ends ``failed`` with what it computed."""
     t0 = time.perf_counter()
     newest, previous = (out / f for f in FILES)
     tmp = out / (FILES[0] + ".tmp")
-    with open(tmp, "wb") as fh:
-        torch.save({"format": FORMAT, **payload}, fh)
-        fh.flush()
-        os.fsync(fh.fileno())
+    try:
+        with open(tmp, "wb") as fh:
+            torch.save({"format": FORMAT, **payload}, fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+    except (OSError, RuntimeError) as exc:  # torch reports a failed write as a RuntimeError
+        tmp.unlink(missing_ok=True)
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc).strip().splitlines()[0]
+        raise CheckpointError(f"checkpoint: expected to write {newest}, found the write failing: {why}") from None
     size = tmp.stat().st_size
     if keep == 2 and newest.exists():
         os.replace(newest, previous)  # between the two renames the previous one is still there

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import os
 import re
 import sys
 import tempfile
@@ -260,6 +259,8 @@ def precheck(argv: list[str]) -> Built | None:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
+    check_study(job)
+    swept = job
     try:
         if multirun:  # what Hydra composes before any job: the command line without its sweeps
             parsed = OverridesParser.create().parse_overrides(job)
@@ -268,10 +269,54 @@ def precheck(argv: list[str]) -> Built | None:
     except (HydraException, OmegaConfBaseException) as exc:
         raise ConfigError(composition_error(exc, job)) from None
     if multirun:
+        shared_refusal(job, swept, hyd)
         return None  # each job is validated where it runs (our sweeper, bench.run) and recorded if bad
+    from bench.run import resolve_device
     from bench.validate import validate
 
-    return validate(cfg)
+    built = validate(cfg)
+    resolve_device(built.config.device)  # a single run runs here: this machine must have the device
+    return built
+
+
+def check_study(job: list[str]) -> None:
+    """``+study=NAME`` names a study file that holds a study: one line if not (Hydra's answers run to pages)."""
+    name = _value(job, "study")
+    if name is not None:
+        from bench.study import load
+
+        load(name)  # the file, its YAML, its sweeps and their overrides
+
+
+def shared_refusal(fixed: list[str], job: list[str], hyd: list[str]) -> None:
+    """Refuse a sweep whose every job is refused for one and the same reason (a bad setting the
+    sweep does not vary, ``threads=0 seed=0,1``): one line before any run dir, rather than a dir
+    and a ``failed`` record per job. Jobs refused for different reasons still make a sweep that
+    records each (``seed=abc,-3``). Only the first job is checked unless it is refused. ``fixed``:
+    the command line less its sweeps, ``job`` with them, ``hyd`` its ``hydra.*`` overrides."""
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    from bench.sweep import planned
+    from bench.validate import validate
+
+    def refusal(overrides: list[str]) -> str | None:
+        task = [o for o in overrides if not o.lstrip("+~").startswith("hydra")]
+        try:
+            validate(compose(task))
+        except (HydraException, OmegaConfBaseException) as exc:
+            return composition_error(exc, task)
+        except BenchError as exc:
+            return str(exc)
+        return None
+
+    try:
+        jobs = planned(compose([*fixed, *hyd], hydra=True), job) or [[]]
+    except (HydraException, OmegaConfBaseException, ValueError):
+        return  # a sweep syntax of another sweeper's: its jobs are checked where they run
+    first = refusal(jobs[0])
+    if first is not None and all(refusal(j) == first for j in jobs[1:]):
+        raise ConfigError(first if len(jobs) == 1 else f"{first} (in all {len(jobs)} jobs of the sweep)")
 
 
 @hydra.main(version_base="1.3", config_path=f"pkg://{CONF_PKG}", config_name="config")
@@ -315,8 +360,9 @@ def _hydra_main(cfg: DictConfig) -> None:
 def _record(hc, status: str, out_dir: object, metrics: dict, wall_s: float | None) -> None:
     """One finished sweep run into the sweep's job record, and the sweep progress line."""
     from bench.summary import record_job
+    from bench.sweep import job_name
 
-    job = {"num": hc.job.num, "name": hc.job.override_dirname, "status": status, "dir": str(out_dir),
+    job = {"num": hc.job.num, "name": job_name(list(hc.overrides.task)), "status": status, "dir": str(out_dir),
            "metrics": dict(metrics), "wall_s": wall_s}  # fmt: skip
     print(record_job(hc.sweep.dir, job), file=sys.stderr, flush=True)
 
@@ -328,21 +374,7 @@ register_configs()
 _PRECHECKED: list[Built] = []
 
 
-def _quiet_openmp_in_workers(argv: list[str]) -> None:
-    """A sweep on this machine runs jobs side by side (hydra/launcher=local, submitit_local, or a
-    study file that picks them): each job's OpenMP pools then sleep when idle instead of spinning.
-
-    A spinning worker holds a core that the job beside it needs; two threads=1 scale-study runs
-    side by side ran several times slower for it (README, "Speed"). Workers are new processes, so
-    the policy set here reaches their OpenMP runtimes; an OMP_WAIT_POLICY of the user's wins, and
-    a SLURM sweep (one job per node) is left alone."""
-    if not any(a in ("-m", "--multirun") for a in argv) or any("launcher=slurm" in a for a in argv):
-        return
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
-
 def main() -> int:
-    _quiet_openmp_in_workers(sys.argv[1:])
     try:
         check_overrides(sys.argv[1:])
         built = precheck(sys.argv[1:])

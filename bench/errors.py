@@ -6,6 +6,10 @@ Anything that is not a ``BenchError`` is a bug and keeps its traceback.
 
 from __future__ import annotations
 
+import argparse
+import sys
+from typing import NoReturn
+
 
 class BenchError(Exception):
     """Base of every error the harness raises on purpose."""
@@ -33,3 +37,12 @@ class ReportError(BenchError):
 
 class TrackingLost(BenchError):
     """Tracking diverged; the run ends with status ``lost`` and keeps its partial results."""
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse with its usage errors as the harness's one ``error:`` line (exit 2): argparse's own
+    print the usage, then a line that begins with the program's name."""
+
+    def error(self, message: str) -> NoReturn:
+        print(f"error: {message} (usage: {self.prog} --help)", file=sys.stderr)
+        sys.exit(2)

@@ -19,14 +19,16 @@ uncompressed float32: 56 bytes per Gaussian, written after each keyframe's prune
 
 from __future__ import annotations
 
-import argparse
+import os
 import sys
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 from plyfile import PlyData, PlyElement
 
-from bench.errors import BenchError, ConfigError
+from bench.errors import ArgumentParser, BenchError, ConfigError
 
 C0 = 0.28209479177387814  # the degree-0 spherical-harmonic constant, 1 / (2 sqrt(pi))
 N_REST = 45  # f_rest_* properties: 3 colours x 15 coefficients of bands 1-3
@@ -71,7 +73,13 @@ def write_ply(path: Path, arrays: dict[str, np.ndarray]) -> Path:
     """Write ``arrays`` (``map_arrays``) as a binary 3DGS PLY at ``path``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    PlyData([PlyElement.describe(ply_vertices(arrays), "vertex")], text=False, byte_order="<").write(str(path))
+    tmp = path.with_name(path.name + ".tmp")  # atomic: a reader never sees half a map
+    try:
+        PlyData([PlyElement.describe(ply_vertices(arrays), "vertex")], text=False, byte_order="<").write(str(tmp))
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     return path
 
 
@@ -110,12 +118,19 @@ def export_keyframe(run_dir: Path, keyframe: int, out: Path | None = None) -> Pa
         found = f"snapshots of keyframes {', '.join(map(str, have))}" if have else "no snapshots"
         raise ConfigError(f"expected a snapshot of keyframe {keyframe} in '{run_dir / SNAPSHOT_DIR}' "
                           f"(made by runs with save_maps=every_keyframe), found {found}")  # fmt: skip
+    target = Path(out) if out is not None else run_dir / f"map_kf{keyframe:03d}.ply"
+    if target.is_dir():
+        raise ConfigError(f"--out: expected a PLY file path, found the directory '{target}'")
     try:
         with np.load(path) as data:
             arrays = {k: np.asarray(data[k], dtype=np.float32) for k in PARAMS}
-    except (OSError, ValueError, KeyError) as exc:
-        raise ConfigError(f"expected '{path}' to hold the arrays {', '.join(PARAMS)}, found: {exc}") from None
-    return write_ply(out if out is not None else run_dir / f"map_kf{keyframe:03d}.ply", arrays)
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as exc:  # truncated, corrupt
+        found = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ConfigError(f"expected '{path}' to hold the arrays {', '.join(PARAMS)}, found: {found}") from None
+    try:
+        return write_ply(target, arrays)
+    except OSError as exc:
+        raise ConfigError(f"--out: expected a writable file path, found '{target}': {exc.strerror or exc}") from None
 
 
 def read_ply(path: Path) -> dict[str, np.ndarray]:
@@ -133,7 +148,7 @@ def read_ply(path: Path) -> dict[str, np.ndarray]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m bench.export",
+    parser = ArgumentParser(prog="python -m bench.export",
                                      description="Write a keyframe's map snapshot (save_maps=every_keyframe) as a "
                                                  "3DGS PLY; every run already leaves its final map as map.ply.")
     parser.add_argument("run_dir", type=Path, help="a run dir")

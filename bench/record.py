@@ -1,6 +1,10 @@
 """Writing ``metrics.json``: atomically, so a reader never sees half a record.
 
-Shared by the run itself and by the sweeper, which records jobs that never reach a run.
+Every write of a run dir's record goes through this module: the run itself (``bench.run``) and the
+sweeper, which records jobs that never reach a run. A refusal (a job refused before any work: a
+bad setting, data that cannot be opened) writes its ``failed`` record only where no previous run
+left one worth keeping (``record_refusal``), so a rerun refused for a passing reason never turns a
+finished run into a failed one.
 """
 
 from __future__ import annotations
@@ -13,15 +17,38 @@ from typing import Any
 
 import numpy as np
 
+from bench.schema import METRICS_FILE
+
+# statuses a refusal must not replace: finished results, a resumable run, a run that may still be going
+KEPT = ("ok", "lost", "interrupted", "running")
+
 
 def write_json(path: Path, obj: dict[str, Any]) -> None:
     """Replace ``path`` by ``obj`` as json, through a temporary file and ``os.replace``."""
-    tmp = path.with_suffix(".json.tmp")
-    with open(tmp, "w") as fh:
-        fh.write(json.dumps(obj, indent=2, default=_json_default))
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    write_text(path, json.dumps(obj, indent=2, default=_json_default))
+
+
+def write_text(path: Path, text: str) -> None:
+    """Replace ``path`` by ``text`` atomically; a failed write leaves the old file and no temporary one."""
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with open(tmp, "w") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def read_record(out: Path) -> dict[str, Any] | None:
+    """The ``metrics.json`` in run dir ``out``, or None where there is none (or none readable)."""
+    try:
+        stored = json.loads((out / METRICS_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    return stored if isinstance(stored, dict) else None
 
 
 def _json_default(o: Any) -> Any:
@@ -32,10 +59,20 @@ def _json_default(o: Any) -> Any:
     raise TypeError(type(o))
 
 
-def record_failed(out: Path, error: str, run: dict[str, Any]) -> None:
-    """A run dir holding a ``failed`` metrics.json with its one-line ``error`` (what the report reads)."""
+def record_refusal(out: Path, error: str, run: dict[str, Any], config_yaml: str | None = None) -> str | None:
+    """A ``failed`` record for a job refused before any work, with its one-line ``error`` (what the
+    report reads), unless ``out`` holds a record to keep (``KEPT``): then nothing is written.
+
+    Returns None when the record was written, else the status of the record kept.
+    """
+    stored = read_record(out)
+    if stored is not None and stored.get("status") in KEPT:
+        return str(stored["status"])
     out.mkdir(parents=True, exist_ok=True)
-    write_json(out / "metrics.json", {"status": "failed", "error": error, "run": run, "metrics": {}, "provenance": {}})
+    if config_yaml is not None:
+        write_text(out / "config.yaml", config_yaml)
+    write_json(out / METRICS_FILE, {"status": "failed", "error": error, "run": run, "metrics": {}, "provenance": {}})
+    return None
 
 
 def owner() -> dict[str, Any]:

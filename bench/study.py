@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import OmegaConf
 
 from bench.errors import ConfigError
 
@@ -65,51 +65,64 @@ def expand(study: Study, extra: Sequence[str] = ()) -> list[tuple[str, list[str]
     products sharing one sweep dir)."""
     from hydra._internal.core_plugins.basic_sweeper import BasicSweeper  # Hydra's own expansion (hydra-core 1.3)
     from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
 
     parser = OverridesParser.create()
     jobs = []
     for sweep, overrides in study.sweeps.items():
-        parsed = parser.parse_overrides([f"sweep_name={sweep}", *overrides, *extra])
+        try:
+            parsed = parser.parse_overrides([f"sweep_name={sweep}", *overrides, *extra])
+        except HydraException as exc:
+            found = str(exc).strip().splitlines()[0]
+            raise ConfigError(f"study '{study.name}' sweep '{sweep}': expected overrides as on a command line, "
+                              f"found: {found}") from None
         for job in BasicSweeper.split_arguments(parsed, None)[0]:
             jobs.append((next(o.split("=", 1)[1] for o in job if o.startswith("sweep_name=")), job))
     return jobs
 
 
-def load(name: str, extra: Sequence[str] = ()) -> tuple[Study, list[Job]]:
-    """Study ``name`` from ``./conf/study/`` (or the package's), and each of its runs with its dir."""
-    from hydra._internal.config_loader_impl import get_overrides_dirname  # how Hydra names a job dir
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
-    from bench.cli import compose
+def check_name(name: str) -> None:
+    """One line unless ``name`` has a study file (else Hydra takes ``+study=NAME`` for a new setting)."""
     from bench.conf import group_files
 
     if name not in group_files(GROUP):
         found = ", ".join(sorted(group_files(GROUP))) or "none (no conf/study/ in the current directory)"
         raise ConfigError(f"unknown study '{name}': expected a file conf/study/{name}.yaml, found: {found}")
-    cfg = compose([f"+{GROUP}={name}"], hydra=True)
+
+
+def load(name: str, extra: Sequence[str] = ()) -> tuple[Study, list[Job]]:
+    """Study ``name`` from ``./conf/study/`` (or the package's), and each of its runs with its dir
+    (``bench.sweep``: the dir the sweeper gives the job)."""
+    from bench.cli import compose
+    from bench.sweep import job_dir, own_dirs
+
+    check_name(name)
+    try:
+        cfg = compose([f"+{GROUP}={name}"], hydra=True)
+    except Exception as exc:  # YAML syntax (yaml's own errors), composition (Hydra's, OmegaConf's)
+        from hydra.errors import HydraException
+        from omegaconf.errors import OmegaConfBaseException
+        from yaml import YAMLError
+
+        if not isinstance(exc, (HydraException, OmegaConfBaseException, YAMLError)):
+            raise
+        found = " ".join(str(exc).split())[:200]
+        raise ConfigError(f"study '{name}': expected a study file (hydra.sweeper.study with its sweeps) in "
+                          f"conf/study/{name}.yaml, found: {found}") from None
     study = parse(name, OmegaConf.select(cfg, "hydra.sweeper.study"))
-    od = cfg.hydra.job.config.override_dirname
-    parser = OverridesParser.create()
-    jobs = []
-    for sweep, overrides in expand(study, extra):
-        dirname = get_overrides_dirname(parser.parse_overrides(overrides), list(od.exclude_keys), od.item_sep,
-                                        od.kv_sep)
-        jobs.append(Job(sweep, tuple(overrides), _sweep_dir(cfg, sweep) / dirname))
+    expanded = expand(study, extra)
+    dirs = own_dirs(cfg, [job for _, job in expanded])
+    jobs = [Job(sweep, tuple(o for o in overrides if not o.startswith("hydra.")), job_dir(cfg, own, i))
+            for i, ((sweep, overrides), own) in enumerate(zip(expanded, dirs, strict=True))]
     return study, jobs
-
-
-def _sweep_dir(cfg: DictConfig, sweep: str) -> Path:
-    """``hydra.sweep.dir`` as a job of sweep ``sweep`` resolves it (``multirun/${sweep_name}``)."""
-    node = OmegaConf.create({"sweep_name": sweep, "hydra": {"sweep": {"dir": OmegaConf.to_container(
-        cfg.hydra.sweep, resolve=False)["dir"]}}})
-    return Path(str(node.hydra.sweep.dir))
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if not argv or argv[0].startswith("-"):
-        print("usage: python -m bench.study NAME [OVERRIDE ...]  (lists the runs of conf/study/NAME.yaml)",
-              file=sys.stderr)
+        found = f"'{argv[0]}'" if argv else "nothing"
+        print(f"error: expected a study name (python -m bench.study NAME [OVERRIDE ...] lists the runs of "
+              f"conf/study/NAME.yaml), found {found}", file=sys.stderr)
         return 2
     try:
         study, jobs = load(argv[0], argv[1:])

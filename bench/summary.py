@@ -1,10 +1,12 @@
 """What a person reads when a run or a sweep ends: an aligned run table, a sweep comparison.
 
 A run prints a short two-column table (headline metrics with units, wall time, run dir). A sweep
-(``--multirun``) records each finished run in ``<sweep dir>/.pocketbench_jobs.jsonl`` as it ends
-(from whichever process or cluster node ran it), prints ``sweep: k/n runs done, ETA ...``, and
-when the sweep is over ``SweepSummary`` (a Hydra callback in the main process) prints one table
-of all its runs and writes it as ``summary.md`` in the sweep dir.
+(``--multirun``) plans its jobs once (``bench.sweep.planned``) and ``SweepSummary`` (a Hydra callback
+in the main process) writes that plan to ``<sweep dir>/.pocketbench_jobs.jsonl``. Each job, wherever
+it runs (a launcher's worker, a cluster node, the sweeper for a job that cannot be composed), appends
+its outcome there and prints ``sweep: k/n runs done, ETA ...``. When the sweep is over the callback
+prints one table of every planned job, with the status it ended in or ``not run``, and writes each
+sweep dir's rows as its ``summary.md`` (a study's jobs are in several sweep dirs).
 """
 
 from __future__ import annotations
@@ -24,6 +26,10 @@ from bench.progress import format_duration
 
 JOBS_FILE = ".pocketbench_jobs.jsonl"
 SUMMARY_FILE = "summary.md"
+# where the jobs of the sweep in progress record their outcome: set by SweepSummary in the main
+# process, inherited by the launcher's workers; a study's jobs write to several sweep dirs
+JOBS_ENV = "POCKETBENCH_SWEEP_JOBS"
+NOT_RUN = "not run"
 
 
 def _num(fmt: str, unit: str = "") -> Callable[[Any], str]:
@@ -122,11 +128,12 @@ def sweep_table(jobs: list[dict[str, Any]]) -> str:
 
 
 def _jobs_path(sweep_dir: str | Path) -> Path:
-    return Path(sweep_dir).resolve() / JOBS_FILE
+    """The record of the sweep in progress (``JOBS_ENV``), else the one in ``sweep_dir``."""
+    return Path(os.environ.get(JOBS_ENV) or Path(sweep_dir).resolve() / JOBS_FILE)
 
 
 def read_jobs(sweep_dir: str | Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    """``(header, jobs)`` recorded so far in this sweep (header: start time and total)."""
+    """``(header, jobs)`` recorded so far in this sweep (header: start time, total, the planned jobs)."""
     try:
         lines = _jobs_path(sweep_dir).read_text().splitlines()
     except OSError:
@@ -153,7 +160,7 @@ def record_job(sweep_dir: str | Path, job: dict[str, Any]) -> str:
     finally:
         os.close(fd)
     header, jobs = read_jobs(sweep_dir)
-    done, total = len(jobs), header.get("total")
+    done, total = len({(j.get("num"), j.get("name")) for j in jobs}), header.get("total")
     text = f"sweep: {done}/{total or '?'} runs done"
     start = header.get("start")
     if total and start and done:
@@ -164,42 +171,60 @@ def record_job(sweep_dir: str | Path, job: dict[str, Any]) -> str:
     return text
 
 
-def count_jobs(task_overrides: list[str]) -> int | None:
-    """How many runs the basic sweeper makes of these overrides (None if it cannot tell)."""
-    # Hydra internal (hydra-core 1.3, hence the <1.4 pin): BasicSweeper.split_arguments is how Hydra
-    # itself expands a sweep; no public API counts the jobs
-    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
-    try:
-        parsed = OverridesParser.create().parse_overrides(overrides=list(task_overrides))
-        batches = BasicSweeper.split_arguments(parsed, None)
-    except Exception:  # another sweeper's syntax: progress then shows '?' for the total
-        return None
-    return len(batches[0]) if batches else None
+def planned_rows(header: dict[str, Any], jobs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Every planned job with what it recorded (matched by its settings, duplicates in order), or
+    ``not run``; without a plan (a record from before plans were written), the records as they are."""
+    plan = header.get("planned")
+    if not plan:
+        return jobs
+    left: dict[str, list[dict[str, Any]]] = {}
+    for job in sorted(jobs, key=lambda j: j.get("num", 0)):
+        left.setdefault(job.get("name") or "", []).append(job)
+    rows = []
+    for job in plan:
+        done = left.get(job["name"]) or []
+        rows.append({**done.pop(0), **job} if done else {**job, "status": NOT_RUN, "metrics": {}, "wall_s": None})
+    return rows
 
 
 class SweepSummary(Callback):
-    """Hydra callback (``hydra.callbacks`` in config.yaml): starts the job record of a sweep, and
-    prints and writes the comparison table when it ends. Runs in the main process only."""
+    """Hydra callback (``hydra.callbacks`` in config.yaml): writes the plan of a sweep, and prints
+    and writes the comparison table when it ends. Runs in the main process only."""
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
-        path = _jobs_path(config.hydra.sweep.dir)
+        from bench.sweep import header, planned
+
+        path = Path(config.hydra.sweep.dir).resolve() / JOBS_FILE
         path.parent.mkdir(parents=True, exist_ok=True)
-        total = count_jobs(list(config.hydra.overrides.task))
-        path.write_text(json.dumps({"start": time.time(), "total": total}) + "\n")
+        plan = header(config, planned(config, list(config.hydra.overrides.task)))
+        path.write_text(json.dumps({"start": time.time(), **plan}) + "\n")
+        os.environ[JOBS_ENV] = str(path)
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
-        sweep_dir = Path(config.hydra.sweep.dir).resolve()
-        header, jobs = read_jobs(sweep_dir)
-        if not jobs:
+        path = Path(os.environ.pop(JOBS_ENV, "") or Path(config.hydra.sweep.dir).resolve() / JOBS_FILE)
+        header, jobs = read_jobs(path.parent)
+        rows = planned_rows(header, jobs)
+        if not rows:
             return
-        table = sweep_table(jobs)
         elapsed = time.time() - float(header.get("start", time.time()))
-        _, shared = varying_overrides([j.get("name") or "" for j in jobs])
-        common = f"Shared overrides: `{' '.join(shared)}`.\n" if shared else ""
-        title = f"# Sweep {sweep_dir.name}: {len(jobs)} runs in {format_duration(elapsed)}"
-        intro = f"Run dirs are under `{sweep_dir}`. {common}".rstrip()
-        (sweep_dir / SUMMARY_FILE).write_text(f"{title}\n\n{intro}\n\n{table}\n")
-        print(f"\n{table}\nsummary written to {sweep_dir / SUMMARY_FILE}", file=sys.stdout, flush=True)
-        _jobs_path(sweep_dir).unlink(missing_ok=True)
+        by_dir: dict[Path, list[dict[str, Any]]] = {}
+        for row in rows:
+            by_dir.setdefault(Path(row["dir"]).resolve().parent if row.get("dir") else path.parent, []).append(row)
+        for sweep_dir, own in by_dir.items():
+            _, shared = varying_overrides([j.get("name") or "" for j in own])
+            common = f"Shared overrides: `{' '.join(shared)}`.\n" if shared else ""
+            title = f"# Sweep {sweep_dir.name}: {_counts(own)} in {format_duration(elapsed)}"
+            intro = f"Run dirs are under `{sweep_dir}`. {common}".rstrip()
+            sweep_dir.mkdir(parents=True, exist_ok=True)
+            (sweep_dir / SUMMARY_FILE).write_text(f"{title}\n\n{intro}\n\n{sweep_table(own)}\n")
+        written = ", ".join(str(d / SUMMARY_FILE) for d in by_dir)
+        print(f"\n{sweep_table(rows)}\n{_counts(rows)}; summary written to {written}", file=sys.stdout, flush=True)
+        path.unlink(missing_ok=True)
+
+
+def _counts(rows: list[dict[str, Any]]) -> str:
+    """``3 jobs: 2 ok, 1 failed``: every planned job accounted for."""
+    by: dict[str, int] = {}
+    for row in rows:
+        by[str(row.get("status"))] = by.get(str(row.get("status")), 0) + 1
+    return f"{len(rows)} job{'s' * (len(rows) != 1)}: " + ", ".join(f"{n} {status}" for status, n in by.items())

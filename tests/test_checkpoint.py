@@ -22,7 +22,7 @@ import torch
 
 from bench import checkpoint as ckpt
 from bench.checkpoint import CheckpointConfig
-from bench.determinism import VOLATILE_KEYFRAME_COLUMNS, repeatable_metrics
+from bench.determinism import VOLATILE_KEYFRAME_COLUMNS, VOLATILE_METRICS, repeatable_metrics
 from bench.errors import ConfigError
 from bench.run import TEST_SIGNAL_ENV
 
@@ -223,3 +223,26 @@ def test_global_generators_round_trip(tmp_path: Path) -> None:
 def test_checkpoint_config_is_checked(every: int, keep: int, message: str) -> None:
     with pytest.raises(ConfigError, match=re.escape(message)):
         CheckpointConfig(every=every, keep=keep)
+
+
+def test_the_readme_lists_exactly_what_a_resume_may_change() -> None:
+    """The fields the resume tests let differ are the ones README's "Checkpoints" names, no more."""
+    text = " ".join((REPO / "README.md").read_text().split())
+    said = re.search(r"memory peaks \(metrics `([^`]+)`; `keyframes.csv` `([^`]+)`", text)
+    assert said, "README, Checkpoints: the list of what a resumed run may change is gone"
+    assert set(said[1].split()) == VOLATILE_METRICS
+    assert set(said[2].split()) == VOLATILE_KEYFRAME_COLUMNS
+
+
+@pytest.mark.slow
+def test_a_resumed_run_draws_the_pictures_of_keyframes_before_the_kill(references: dict[str, Path],
+                                                                      tmp_path: Path) -> None:
+    at = checkpoint_frames(references["pocket"])
+    run_dir = tmp_path / "run"
+    args = [*TINY, "+strategy=pocket", "viz.pruning=true", "viz.every=1", f"hydra.run.dir={run_dir}"]
+    assert bench(args, tmp_path, signal_at=f"{at[1] - 1}:KILL").returncode == -9
+    assert not list(run_dir.glob("pruned_kf*.png")) and list(run_dir.glob("pruned_kf*.npz"))
+    resumed = bench(args, tmp_path)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    kfs = [int(r["kf"]) for r in keyframe_rows(references["pocket"]) if int(r["kf"]) > 0]
+    assert sorted(p.name for p in run_dir.glob("pruned_kf*.png")) == [f"pruned_kf{k:03d}.png" for k in kfs]

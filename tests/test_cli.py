@@ -171,20 +171,3 @@ def test_a_single_run_is_validated_and_built_once(tmp_path, monkeypatch):
         assert cli.main() == 0, err.getvalue()
     assert json.loads((tmp_path / "metrics.json").read_text())["status"] == "ok"
     assert len(conversions) == 1  # one conversion: every rule run once, the strategy built once
-
-
-def test_sweeps_on_this_machine_give_their_workers_a_sleeping_openmp(monkeypatch):
-    """Jobs side by side (local launchers, study files): idle OpenMP workers sleep rather than spin;
-    a user's policy and SLURM sweeps are left alone, and a single run is untouched."""
-    from bench.cli import _quiet_openmp_in_workers
-
-    for argv, expected_policy in ((["--multirun", "+study=scale"], "PASSIVE"),
-                                  (["-m", "hydra/launcher=local", "seed=0,1"], "PASSIVE"),
-                                  (["-m", "hydra/launcher=slurm", "seed=0,1"], None),
-                                  (["+strategy=pocket"], None)):
-        monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
-        _quiet_openmp_in_workers(argv)
-        assert __import__("os").environ.get("OMP_WAIT_POLICY") == expected_policy, argv
-    monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
-    _quiet_openmp_in_workers(["-m", "seed=0,1"])
-    assert __import__("os").environ["OMP_WAIT_POLICY"] == "ACTIVE"

@@ -28,6 +28,7 @@ from bench.datasets import _realio as realio
 from bench.datasets.base import Sequence
 from bench.datasets.stereo import DepthCache, StereoConfig, StereoParams, StereoSequence
 from bench.errors import DatasetError
+from bench.stamps import order_problem
 from bench.typed import as_config, setting
 
 LOG = logging.getLogger("bench.datasets.euroc")
@@ -161,7 +162,7 @@ def read_cam_csv(cam_dir: Path) -> tuple[np.ndarray, list[str]]:
     path = cam_dir / "data.csv"
     if not path.is_file():
         raise DatasetError(f"euroc camera list missing: expected {path}, found {realio.listing(cam_dir)} in {cam_dir}")
-    stamps, names = [], []
+    stamps, names, linenos = [], [], []
     for lineno, line in enumerate(path.read_text().splitlines(), 1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
@@ -172,12 +173,21 @@ def read_cam_csv(cam_dir: Path) -> tuple[np.ndarray, list[str]]:
             )
         stamps.append(int(parts[0]))
         names.append(parts[1])
+        linenos.append(lineno)
+    _check_order(stamps, linenos, path, "camera list")
     n_files = sum(1 for p in (cam_dir / "data").glob("*.png")) if (cam_dir / "data").is_dir() else 0
     if n_files != len(names):
         raise DatasetError(
             f"euroc camera list {path}: expected one png in {cam_dir / 'data'} per line ({len(names)}), found {n_files}"
         )
     return np.array(stamps, dtype=np.int64), names
+
+
+def _check_order(stamps_ns: list[int], linenos: list[int], path: Path, what: str) -> None:
+    """Strictly increasing timestamps, or one ``DatasetError`` line naming the row."""
+    problem = order_problem(np.array(stamps_ns, dtype=np.int64) * 1e-9, linenos)
+    if problem:
+        raise DatasetError(f"euroc {what} {path} {problem}")
 
 
 def read_groundtruth(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -205,6 +215,7 @@ def read_groundtruth(path: Path) -> tuple[np.ndarray, np.ndarray]:
         linenos.append(lineno)
     arr = np.array(rows, dtype=np.float64).reshape(-1, 7)
     realio.check_finite_rows(arr, path, DATASET, "ground truth", line_numbers=linenos)
+    _check_order(stamps, linenos, path, "ground truth")
     return np.array(stamps, dtype=np.int64), realio.poses_from_tq(arr[:, :3], arr[:, 3:7], path, DATASET)
 
 

@@ -21,6 +21,7 @@ from bench.datasets import _realio as realio
 from bench.datasets.base import Sequence
 from bench.datasets.stereo import DepthCache, StereoConfig, StereoSequence
 from bench.errors import DatasetError
+from bench.stamps import order_problem
 from bench.typed import as_config, setting
 
 LOG = logging.getLogger("bench.datasets.kitti")
@@ -130,16 +131,20 @@ def read_times(path: Path) -> np.ndarray:
             f"kitti times missing: expected {path}, found {realio.listing(path.parent)} in {path.parent}; "
             f"{realio.readme(DATASET)}"
         )
-    times = []
+    times, linenos = [], []
     for lineno, line in enumerate(path.read_text().splitlines(), 1):
         if not line.strip():
             continue
+        linenos.append(lineno)
         try:
             times.append(float(line))
         except ValueError:
             raise DatasetError(f"kitti times {path} line {lineno}: expected one number, found {line[:40]!r}") from None
     arr = np.array(times, dtype=np.float64)
     realio.check_finite_rows(arr[:, None], path, DATASET, "times")
+    problem = order_problem(arr, linenos)
+    if problem:
+        raise DatasetError(f"kitti times {path} {problem}")
     return arr
 
 

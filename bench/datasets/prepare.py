@@ -10,7 +10,6 @@ every depth parameter, so prepare with the same overrides the benchmark will use
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import logging
 import sys
@@ -23,7 +22,7 @@ from omegaconf import OmegaConf
 from bench.conf import CONF_DIR, group_files
 from bench.datasets import open_sequence
 from bench.datasets.stereo import StereoSequence
-from bench.errors import BenchError, ConfigError
+from bench.errors import ArgumentParser, BenchError, ConfigError
 
 LOG = logging.getLogger("bench.datasets.prepare")
 
@@ -102,7 +101,7 @@ def prepare(name: str, cfg: Any) -> dict[str, float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m bench.datasets.prepare", description=__doc__.split("\n")[0])
+    parser = ArgumentParser(prog="python -m bench.datasets.prepare", description=__doc__.split("\n")[0])
     parser.add_argument("dataset", help="dataset config name: kitti, euroc or tum")
     parser.add_argument("--seq", help="sequence (default: the yaml's default_seq)")
     parser.add_argument("--root", help="dataset root (default: the yaml's root)")

@@ -267,6 +267,10 @@ def read_route_file(path: str, n_frames: int) -> np.ndarray:
     if len(rows) < n_frames:
         raise DatasetError(f"synthetic route_file {p}: expected at least n_frames={n_frames} poses, found {len(rows)}")
     m = np.asarray(rows).reshape(-1, 3, 4)
+    ground = m[:, [0, 2], 3]  # [n, 2] the ground track: the street is laid along it
+    if np.linalg.norm(np.diff(ground, axis=0), axis=1).sum() <= 1e-6:
+        raise DatasetError(f"synthetic route_file {p}: expected a route that moves along the ground, found all "
+                           f"{len(m)} poses at one spot")
     fwd = m[:, [0, 2], 2]  # [n, 2] the camera's z axis on the ground
     if (np.linalg.norm(fwd, axis=1) < 1e-6).any():
         raise DatasetError(f"synthetic route_file {p}: expected cameras looking along the ground, found one "

@@ -11,13 +11,13 @@ import argparse
 import sys
 from pathlib import Path
 
-from bench.errors import BenchError, ReportError
+from bench.errors import ArgumentParser, BenchError, ReportError
 from bench.report.build import load_labels, make_report, redraw
-from bench.report.plots import DPI
+from bench.report.plots import DPI, check_figure_options
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="python -m bench.report",
         description="Tables (CSV, LaTeX, Markdown) and figures from SLAM run dirs.",
     )
@@ -64,6 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
         formats = tuple(f.strip().lower().lstrip(".") for f in args.format.split(",") if f.strip())
+        check_figure_options(formats, args.dpi)  # before any table is written
         if args.redraw is not None:
             if args.dirs or args.out:
                 raise ReportError(f"--redraw takes no run dirs and no --out, found {len(args.dirs)} dirs"

@@ -159,6 +159,7 @@ def redraw(report_dir: Path, formats: tuple[str, ...] = ("png",), dpi: int = DPI
     missing = sorted({"strategy", "dataset", "seq", "status", "path", "keep_ratio"} - set(runs.columns))
     if missing:
         raise ReportError(f"expected runs.csv columns {', '.join(missing)} in '{runs_path}', found none of them")
+    _check_numbers(runs, runs_path)
     warnings: list[str] = []
     keyframes = _stored_run_tables(report_dir / KEYFRAMES_FILE)
     if not keyframes:
@@ -174,9 +175,31 @@ def _stored_run_tables(path: Path) -> dict[str, pd.DataFrame]:
     if not path.is_file():
         return {}
     try:
-        return grouped_run_tables(pd.read_csv(path, dtype={"path": str}))
+        table = pd.read_csv(path, dtype={"path": str})
     except (OSError, ValueError) as exc:
         raise ReportError(f"cannot read '{path}': {exc}") from None
+    if "path" not in table:
+        raise ReportError(f"expected a path column (the run each row belongs to) in '{path}', found columns: "
+                          f"{', '.join(map(str, table.columns[:8]))}{', ...' if len(table.columns) > 8 else ''}")
+    _check_numbers(table, path)
+    return grouped_run_tables(table)
+
+
+def _check_numbers(table: pd.DataFrame, path: Path) -> None:
+    """One ``ReportError`` line for text in a column the schema holds numbers in: a figure would
+    otherwise fail mid-drawing, after others were written."""
+    from bench import schema
+
+    numbers = {f.name for fields in (schema.RUN_FIELDS, schema.METRIC_FIELDS, schema.KEYFRAME_FIELDS,
+                                     schema.MILESTONE_FIELDS) for f in fields if f.kind == "number"}
+    for column in table.columns:
+        if column not in numbers or pd.api.types.is_numeric_dtype(table[column]):
+            continue
+        bad = table[column].notna() & pd.to_numeric(table[column], errors="coerce").isna()
+        if bad.any():
+            row = int(bad.to_numpy().nonzero()[0][0])
+            raise ReportError(f"expected numbers in column '{column}' of '{path}', found "
+                              f"{table[column].iloc[row]!r} on line {row + 2}")
 
 
 STATS_COLUMNS: tuple[str, ...] = (

@@ -764,6 +764,16 @@ def plot_pareto(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
     return _save(fig, out / f"pareto_{file_token(dataset)}.png")
 
 
+def check_figure_options(formats: tuple[str, ...], dpi: int) -> None:
+    """One ``ReportError`` line unless every format is one we draw and ``dpi`` is positive: checked
+    before a report writes anything, so a refused one leaves its folder as it was."""
+    bad = [f for f in formats if f not in FORMATS]
+    if bad or not formats:
+        raise ReportError(f"expected figure formats among {', '.join(FORMATS)}, found {', '.join(formats) or '(none)'}")
+    if dpi <= 0:
+        raise ReportError(f"expected a positive dpi, found {dpi}")
+
+
 def make_plots(
     runs: pd.DataFrame, out: Path, warn: Warn, formats: tuple[str, ...] = ("png",), dpi: int = DPI,
     keyframes: dict[str, pd.DataFrame] | None = None, milestones: dict[str, pd.DataFrame] | None = None,
@@ -772,11 +782,7 @@ def make_plots(
     """Every figure the runs support, in each of ``formats``; finished runs only. ``keyframes`` and
     ``milestones`` (run path -> its rows) stand in for run dirs that are gone (``redraw``).
     ``long_drives``: also memory against distance and accuracy at the milestones (``eval.at_frames``)."""
-    bad = [f for f in formats if f not in FORMATS]
-    if bad or not formats:
-        raise ReportError(f"expected figure formats among {', '.join(FORMATS)}, found {', '.join(formats) or '(none)'}")
-    if dpi <= 0:
-        raise ReportError(f"expected a positive dpi, found {dpi}")
+    check_figure_options(formats, dpi)
     previous = dict(_output)
     _output.update(formats=tuple(formats), dpi=int(dpi), keyframes=keyframes or {}, milestones=milestones or {},
                    long_drives=long_drives)

@@ -12,23 +12,18 @@ from __future__ import annotations
 import logging
 import sys
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
-# Hydra internals (hydra-core 1.3, hence the <1.4 pin in pyproject.toml): the basic sweeper is not
-# public API but is the sweeper this one extends, and get_overrides_dirname is how Hydra names a job's
-# dir (hydra.job.override_dirname), which a failed job's record must match
-from hydra._internal.config_loader_impl import get_overrides_dirname
+# Hydra internal (hydra-core 1.3, hence the <1.4 pin in pyproject.toml): the basic sweeper is not
+# public API but is the sweeper this one extends
 from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
-from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.errors import HydraException
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from bench.record import record_failed
+from bench.record import record_refusal
 
 log = logging.getLogger(__name__)
-_OVERRIDE_DIRNAME = "${hydra:job.override_dirname}"
 
 
 class BenchSweeper(BasicSweeper):
@@ -44,14 +39,11 @@ class BenchSweeper(BasicSweeper):
         self.study = study
 
     def split_arguments(self, overrides: list[Any], max_batch_size: int | None) -> list[list[list[str]]]:
-        """The jobs of the command line (shadows Hydra's staticmethod, which ``sweep`` calls through self)."""
-        if not self.study:
-            return BasicSweeper.split_arguments(overrides, max_batch_size)
-        from bench.study import expand, parse
+        """The jobs of the command line, each in a dir of its own (``bench.sweep``; shadows Hydra's
+        staticmethod, which ``sweep`` calls through self)."""
+        from bench.sweep import expand
 
-        given = [o for o in overrides if o.key_or_group != "study"]
-        name = next((o.value() for o in overrides if o.key_or_group == "study"), "?")
-        jobs = [job for _, job in expand(parse(str(name), self.study), [o.input_line for o in given])]
+        jobs = expand(self.config, [o.input_line for o in overrides])
         n = max_batch_size or len(jobs) or 1
         return [jobs[i : i + n] for i in range(0, len(jobs), n)]
 
@@ -63,8 +55,17 @@ class BenchSweeper(BasicSweeper):
             """The launcher, handed only the jobs that compose."""
 
             def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> Any:
-                good = [list(o) for i, o in enumerate(job_overrides) if sweeper._composes(o, initial_job_idx + i)]
-                return launcher.launch(good, initial_job_idx=initial_job_idx) if good else []
+                """Each unbroken run of good jobs at its own job numbers: a job's number (and a dir
+                named by it) is its place in the plan, whichever jobs before it were refused."""
+                results, run, start = [], [], initial_job_idx
+                for i, o in enumerate([*job_overrides, None]):
+                    if o is not None and sweeper._composes(o, initial_job_idx + i):
+                        run.append(list(o))
+                        continue
+                    if run:
+                        results.extend(launcher.launch(run, initial_job_idx=start))
+                    run, start = [], initial_job_idx + i + 1
+                return results
 
             def __getattr__(self, name: str) -> Any:
                 return getattr(launcher, name)
@@ -80,6 +81,8 @@ class BenchSweeper(BasicSweeper):
 
     def _composes(self, overrides: Sequence[str], job_idx: int) -> bool:
         from bench.cli import composition_error
+        from bench.summary import record_job
+        from bench.sweep import job_dir, job_name
 
         try:
             self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
@@ -87,20 +90,13 @@ class BenchSweeper(BasicSweeper):
         except (HydraException, OmegaConfBaseException) as exc:
             message = composition_error(exc, list(overrides))
         log.info("\t#%d : %s", job_idx, " ".join(overrides))
-        out = self._job_dir(overrides, job_idx)
-        record_failed(out, message, _run_keys(self.config, overrides))
+        out = job_dir(self.config, overrides, job_idx)
+        record_refusal(out, message, _run_keys(self.config, overrides))
         print(f"error: {message}", file=sys.stderr)
+        job = {"num": job_idx, "name": job_name(overrides), "status": "failed", "error": message, "dir": str(out),
+               "metrics": {}, "wall_s": None}  # fmt: skip
+        print(record_job(self.config.hydra.sweep.dir, job), file=sys.stderr, flush=True)
         return False
-
-    def _job_dir(self, overrides: Sequence[str], job_idx: int) -> Path:
-        hc = self.config.hydra
-        sweep_dir = Path(str(hc.sweep.dir))
-        subdir = OmegaConf.to_container(hc.sweep, resolve=False).get("subdir")
-        if subdir != _OVERRIDE_DIRNAME:
-            return sweep_dir / str(job_idx)
-        parsed = OverridesParser.create().parse_overrides(list(overrides))
-        od = hc.job.config.override_dirname
-        return sweep_dir / get_overrides_dirname(parsed, list(od.exclude_keys), od.item_sep, od.kv_sep)
 
 
 def _run_keys(config: Any, overrides: Sequence[str]) -> dict[str, Any]:
