@@ -29,7 +29,7 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from bench.conf import CONF_DIR, group_files
-from bench.config import expected, register_configs
+from bench.config import compose, expected, register_configs
 from bench.errors import BenchError, ConfigError, StrategyError
 from bench.registry import unknown_name_message
 from bench.summary import run_table
@@ -233,15 +233,6 @@ def _known_keys(parent: str, overrides: list[str]) -> str:
         return ", ".join(sorted(node)) if node else "(no keys)"
     except Exception:  # the rest of the command line does not compose either: the name is enough
         return "(unknown)"
-
-
-def compose(overrides: list[str], hydra: bool = False) -> DictConfig:
-    """The run config of ``overrides`` as the CLI composes it (``./conf`` first); ``hydra``: with its ``hydra`` node."""
-    from hydra import compose as hydra_compose
-    from hydra import initialize_config_dir
-
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        return hydra_compose(config_name="config", overrides=list(overrides), return_hydra_config=hydra)
 
 
 def precheck(argv: list[str]) -> Built | None:

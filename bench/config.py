@@ -21,7 +21,7 @@ from omegaconf import MISSING, DictConfig, OmegaConf
 
 from bench import registry
 from bench.checkpoint import CheckpointConfig
-from bench.conf import group_files
+from bench.conf import CONF_DIR, group_files
 from bench.datasets import GROUP as DATASET_GROUP
 from bench.datasets import schema
 from bench.errors import ConfigError, StrategyError
@@ -149,6 +149,23 @@ def dataset_schemas() -> dict[str, type]:
     return {name: cls for name in registry.available(DATASET_GROUP) if (cls := schema(name)) is not None}
 
 
+def compose(overrides: list[str], hydra: bool = False) -> DictConfig:
+    """The run config of ``overrides`` as the CLI composes it (``./conf`` first); ``hydra``: with its ``hydra`` node.
+
+    Here rather than in ``bench.cli`` so that modules the CLI imports (``bench.study``) can compose without
+    importing the CLI back; ``bench.cli`` re-exports it and registers the schemas when imported."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+
+    if not _REGISTERED:
+        register_configs()
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        return hydra_compose(config_name="config", overrides=list(overrides), return_hydra_config=hydra)
+
+
+_REGISTERED: list[str] = []  # what register_configs stored (empty until it ran)
+
+
 def register_configs() -> list[str]:
     """Store the run schema, the dataset schemas and every installed strategy's schema.
 
@@ -173,4 +190,5 @@ def register_configs() -> list[str]:
         if name not in shipped:
             cs.store(group="strategy", name=name, node=node, provider="pocketbench")
             added.append(name)
+    _REGISTERED[:] = ["run", *added]
     return added

@@ -40,8 +40,8 @@ def expand(config: DictConfig, lines: Sequence[str]) -> list[list[str]]:
     parsed = OverridesParser.create().parse_overrides(list(lines))
     study = OmegaConf.select(config, "hydra.sweeper.study")
     if study:
-        from bench.study import expand as expand_study
-        from bench.study import parse
+        from bench.studyfile import expand as expand_study
+        from bench.studyfile import parse
 
         name = next((str(o.value()) for o in parsed if o.key_or_group == "study"), "?")
         given = [o.input_line for o in parsed if o.key_or_group != "study"]
