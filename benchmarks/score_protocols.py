@@ -28,11 +28,11 @@ sys.path.insert(0, str(ROOT))  # score with the checkout this file sits in
 PROTOCOLS = ("full", "splatam", "released")
 
 
-def score_run(run_dir: Path) -> list[dict]:
+def score_run(run_dir: Path, protocols: tuple[str, ...] = PROTOCOLS) -> list[dict]:
     from bench.export import MAP_FILE, read_ply
     from bench.metrics.protocol import frame_metrics, mean_metrics, protocol_mask
     from bench.metrics.trajectory import read_tum
-    from bench.run import open_seq
+    from bench.run import _eval_depth_range, open_seq
     from bench.slam.raster import rasterize
     from bench.validate import validate
 
@@ -47,9 +47,8 @@ def score_run(run_dir: Path) -> list[dict]:
     for i, (p, q) in enumerate(zip(est.positions_m, est.quat_wxyz, strict=True)):
         c2w[i] = quaternion_matrix(q)
         c2w[i, :3, 3] = p
-    near = getattr(cfg.dataset, "eval_depth_near_m", 0.0) or 0.0
-    far = getattr(cfg.dataset, "eval_depth_far_m", None)
-    frames: dict[str, list] = {p: [] for p in PROTOCOLS}
+    near, far = _eval_depth_range(cfg.dataset)  # the dataset's range, as the run's own evaluation reads it
+    frames: dict[str, list] = {p: [] for p in protocols}
     with torch.no_grad():
         for i in range(0, len(est), max(1, cfg.eval.every)):
             w2c = torch.from_numpy(np.linalg.inv(c2w[i])).float()
@@ -58,12 +57,12 @@ def score_run(run_dir: Path) -> list[dict]:
                             seq.width, seq.height, depth_far_m=cfg.slam.depth_far_m, backend=cfg.slam.raster_backend)
             pred = out.color.clamp(0, 1)
             frame = seq[i]
-            for protocol in PROTOCOLS:
+            for protocol in protocols:
                 mask = protocol_mask(protocol, frame.depth_m, out.alpha, near, far)
                 frames[protocol].append(frame_metrics(protocol, pred, frame.rgb, mask))
     stored = json.loads((run_dir / "metrics.json").read_text()).get("metrics", {})
     rows = []
-    for protocol in PROTOCOLS:
+    for protocol in protocols:
         m = mean_metrics(frames[protocol])
         rows.append({"run": str(run_dir), "protocol": protocol, "psnr_db": m.get("psnr_db"), "ssim": m.get("ssim"),
                      "ms_ssim": m.get("ms_ssim"), "mask_frac": m.get("mask_frac"), "eval_frames": len(frames[protocol]),
@@ -75,8 +74,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("runs", nargs="+", type=Path)
     ap.add_argument("--csv", type=Path, default=None)
+    ap.add_argument("--protocols", default=",".join(PROTOCOLS), help="comma-separated subset of " + ",".join(PROTOCOLS))
     args = ap.parse_args()
-    rows = [row for run in args.runs for row in score_run(run)]
+    protocols = tuple(p for p in args.protocols.split(",") if p)
+    if not protocols or set(protocols) - set(PROTOCOLS):
+        ap.error(f"--protocols: expected a comma-separated subset of {','.join(PROTOCOLS)}, found {args.protocols!r}")
+    rows = [row for run in args.runs for row in score_run(run, protocols)]
 
     def fmt(v, spec: str) -> str:
         return "-" if v is None else format(v, spec)
