@@ -57,9 +57,10 @@ class SlamConfig:
     # mapping's colour term: (1 - w) x L1 + w x D-SSIM, the 3DGS / SplaTAM form (both use 0.2); 0 = L1 alone
     lambda_ssim_map: float = 0.0
     silhouette_min: float = 0.99  # tracking uses pixels the map explains with confidence
-    # ... and, when > 0, only those whose depth error is within this x the median error of those pixels: an
-    # object moving with the camera (a car ahead) otherwise pulls the pose back along the road (SplaTAM: 10,
-    # ignore_outlier_depth_loss; see _depth_inliers); 0 = off
+    # ... and, when > 0, only those whose depth error is within this x the median error of those pixels, so that
+    # a few pixels the map cannot explain (a car that moved on) do not steer the pose: SplaTAM's
+    # ignore_outlier_depth_loss at 10 (see _depth_inliers); 0 = off. It does not remove the pull that
+    # feature_weight holds (reports/fidelity/README.md, "At the faithful preset")
     tracking_depth_outlier: float = 0.0
     # which pixels tracking compares: "current" re-selects the confident ones at every iterate;
     # "init" fixes them at the initial pose (which falls short when the initial pose is far off).
