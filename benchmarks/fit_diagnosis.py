@@ -37,12 +37,11 @@ DEFAULT = f"dataset=kitti dataset.root={SHARED_KITTI} seq=06 threads=2"
 
 
 def psnr(sq: torch.Tensor, sel: torch.Tensor | None = None) -> float:
-    """PSNR (data range 1) of the per-pixel squared errors ``sq`` [H, W] over ``sel`` [H, W] (all if None)."""
-    vals = sq if sel is None else sq[sel]
-    if vals.numel() == 0:
-        return math.nan
-    mse = float(vals.double().mean())
-    return math.inf if mse == 0 else -10.0 * math.log10(mse)
+    """``region_psnr_db`` with NaN for an empty region, so region means skip it."""
+    from bench.metrics.image import region_psnr_db
+
+    value = region_psnr_db(sq, sel)
+    return math.nan if value is None else value
 
 
 def affine_gain_db(pred: torch.Tensor, target: torch.Tensor, sel: torch.Tensor) -> float:

@@ -96,6 +96,19 @@ def _sized_bchw(pred: torch.Tensor, target: torch.Tensor, metric: str, min_px: i
     return p, t
 
 
+def region_psnr_db(sq_err: torch.Tensor, sel: torch.Tensor | None = None) -> float | None:
+    """PSNR (data range 1) of the pooled squared errors ``sq_err`` [H, W] over the pixels ``sel`` [H, W] (all if None).
+
+    For diagnostics that split an image into regions (pixels with and without depth); a run's own image
+    metrics are ``psnr_db`` and ``bench.metrics.protocol``. None for an empty region, ``inf`` for no error.
+    """
+    vals = sq_err if sel is None else sq_err[sel]
+    if vals.numel() == 0:
+        return None
+    mse = float(vals.double().mean())
+    return math.inf if mse == 0 else -10.0 * math.log10(mse)
+
+
 def ssim(pred: torch.Tensor, target: torch.Tensor) -> float:
     """Mean SSIM with the module's convention (Gaussian 11 / 1.5, K1 0.01, K2 0.03, range 1)."""
     p, t = _sized_bchw(pred, target, "ssim", SSIM_KERNEL_PX)

@@ -23,6 +23,7 @@ import torch
 
 from bench.datasets.base import Frame
 from bench.errors import ConfigError, TrackingLost
+from bench.metrics.image import region_psnr_db
 from bench.schema import PRUNE_QUARTILE_COLUMNS
 from bench.slam.frontend import FlowPnpConfig, relative_motion, to_gray_u8
 from bench.slam.gaussians import GaussianMap, LearningRates
@@ -741,16 +742,9 @@ class System:
         out = self.render(w2c)
         sq = (out.color.clamp(0, 1) - rgb).pow(2).mean(-1)  # [H, W]
         has_depth = depth > 0  # [H, W]
-
-        def psnr(sel: torch.Tensor) -> float | None:
-            if not sel.any():
-                return None
-            mse = float(sq[sel].double().mean())
-            return float("inf") if mse == 0 else -10.0 * float(np.log10(mse))
-
-        diag["kf_psnr_db"] = psnr(torch.ones_like(has_depth))
-        diag["kf_psnr_depth_db"] = psnr(has_depth)
-        diag["kf_psnr_nodepth_db"] = psnr(~has_depth)
+        diag["kf_psnr_db"] = region_psnr_db(sq)
+        diag["kf_psnr_depth_db"] = region_psnr_db(sq, has_depth)
+        diag["kf_psnr_nodepth_db"] = region_psnr_db(sq, ~has_depth)
         diag["kf_depth_frac"] = float(has_depth.float().mean())
 
     @torch.no_grad()

@@ -120,3 +120,17 @@ def test_ssim_too_small_and_frame_count() -> None:
         ssim(torch.zeros(8, 8, 3), torch.zeros(8, 8, 3))
     with pytest.raises(MetricError, match="frame counts differ"):
         image_metrics([torch.zeros(16, 16, 3)], [])
+
+
+def test_region_psnr_is_over_the_selected_pixels_only():
+    from bench.metrics.image import region_psnr_db
+
+    sq = torch.full((4, 6), 0.01)  # an error of 0.1 everywhere ...
+    sq[:, :3] = 0.0001  # ... and 0.01 on the left half
+    left = torch.zeros(4, 6, dtype=torch.bool)
+    left[:, :3] = True
+    assert region_psnr_db(sq, left) == pytest.approx(40.0)
+    assert region_psnr_db(sq, ~left) == pytest.approx(20.0)
+    assert region_psnr_db(sq) == pytest.approx(-10 * math.log10(0.00505))
+    assert region_psnr_db(sq, torch.zeros_like(left)) is None
+    assert region_psnr_db(torch.zeros(2, 2)) == math.inf
