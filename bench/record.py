@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from bench import job_outputs
 from bench.schema import METRICS_FILE
 
 # statuses a refusal must not replace: finished results, a resumable run, a run that may still be going
@@ -59,7 +60,8 @@ def _json_default(o: Any) -> Any:
     raise TypeError(type(o))
 
 
-def record_refusal(out: Path, error: str, run: dict[str, Any], config_yaml: str | None = None) -> str | None:
+def record_refusal(out: Path, error: str, run: dict[str, Any], config_yaml: str | None = None,
+                   task_cfg: Any = None) -> str | None:
     """A ``failed`` record for a job refused before any work, with its one-line ``error`` (what the
     report reads), unless ``out`` holds a record to keep (``KEPT``): then nothing is written.
 
@@ -69,6 +71,7 @@ def record_refusal(out: Path, error: str, run: dict[str, Any], config_yaml: str 
     if stored is not None and stored.get("status") in KEPT:
         return str(stored["status"])
     out.mkdir(parents=True, exist_ok=True)
+    job_outputs.keep(out, task_cfg)  # Hydra's files, for the job that records here
     if config_yaml is not None:
         write_text(out / "config.yaml", config_yaml)
     write_json(out / METRICS_FILE, {"status": "failed", "error": error, "run": run, "metrics": {}, "provenance": {}})

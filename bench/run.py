@@ -32,7 +32,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from bench import checkpoint as ckpt
-from bench import provenance, schema
+from bench import job_outputs, provenance, schema
 from bench.conf import config_files
 from bench.config import RunConfig
 from bench.datasets import Sequence, open_sequence
@@ -120,7 +120,7 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: B
             built = validate(cfg)
     except ConfigError as exc:  # in a sweep the job is recorded; a single run was refused by the CLI already
         make_out_dir(out)
-        return _refused(out, str(exc), run_keys(cfg))
+        return _refused(out, str(exc), run_keys(cfg), task_cfg=cfg)
     conf = built.config  # below here only dataclasses travel
     make_out_dir(out)
     stored = _previous(out)
@@ -130,13 +130,13 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: B
         ckpt.check_files(out)
         seq = open_seq(conf)  # the loaders draw from their own seeded generators, not the global ones
     except BenchError as exc:  # bad data found before any work
-        return _refused(out, str(exc), keys, OmegaConf.to_yaml(cfg, resolve=True))
+        return _refused(out, str(exc), keys, OmegaConf.to_yaml(cfg, resolve=True), cfg)
     keys = run_keys(conf, built.tree, seq)
     missing = [name for name, digest in keys["inputs"].items() if digest == "missing"]
     if missing:  # the fingerprint found them gone: refuse now, not at the frame that reads one
         more = f" and {len(missing) - 1} more" if len(missing) > 1 else ""
         return _refused(out, f"input files: expected every file the dataset lists, found {missing[0]} missing{more}",
-                        keys, OmegaConf.to_yaml(cfg, resolve=True))
+                        keys, OmegaConf.to_yaml(cfg, resolve=True), cfg)
     record: dict[str, Any] = {
         "status": "running", "error": None, "run": keys, "determinism": {}, "metrics": {}, "provenance": {},
         "owner": owner(),
@@ -156,6 +156,7 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: B
             log.info("resuming %s from frame %d (checkpoint of keyframe %d)", out, start["frame"], start["keyframe"])
         elif stored is not None:
             log.log(level, "redoing %s: %s", out, reason)
+    job_outputs.keep(out, cfg)
     write_text(out / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
     record["checkpoint"] = {"every": conf.checkpoint.every, "written": 0, "mib_last": None, "write_s_total": 0.0,
                             "resumed_from_frames": []}  # fmt: skip
@@ -205,11 +206,12 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: B
     return RunResult(status, out, metrics, error)
 
 
-def _refused(out: Path, error: str, keys: dict[str, Any], config_yaml: str | None = None) -> RunResult:
+def _refused(out: Path, error: str, keys: dict[str, Any], config_yaml: str | None = None,
+             task_cfg: DictConfig | None = None) -> RunResult:
     """A run refused before any work: recorded ``failed``, unless ``out`` holds a previous run's
     record to keep (finished, resumable or live), which a refusal for a passing reason (data briefly
     unreachable, no CUDA on this node) must not replace."""
-    kept = record_refusal(out, error, keys, config_yaml)
+    kept = record_refusal(out, error, keys, config_yaml, task_cfg)
     if kept is not None:
         error = f"{error} (nothing written: {out} keeps its {kept} record)"
     return RunResult("failed", out, {}, error)

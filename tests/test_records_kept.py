@@ -29,8 +29,9 @@ def finished_dir(path: Path, status: str = "ok") -> dict[str, bytes]:
 
 
 def files(path: Path) -> dict[str, bytes]:
-    """The run's own files; Hydra's log (``cli.log``) and ``.hydra/`` are Hydra's, written before the job starts."""
-    return {p.name: p.read_bytes() for p in path.iterdir() if p.is_file() and p.name != "cli.log"}
+    """Every file under the run dir, Hydra's log (``cli.log``) and ``.hydra/`` included: Hydra writes
+    them only for a job that does work (``bench.job_outputs``)."""
+    return {str(p.relative_to(path)): p.read_bytes() for p in sorted(path.rglob("*")) if p.is_file()}
 
 
 @pytest.mark.parametrize("status", ["ok", "lost", "interrupted"])
@@ -89,3 +90,31 @@ def test_refused_sweep_job_keeps_the_finished_record(tmp_path: Path, monkeypatch
     assert res.stderr.count("keeps its ok record") == 2, res.stderr
     for s, d in dirs.items():
         assert files(d) == before[s]
+
+
+def test_skipped_rerun_leaves_the_finished_dir_byte_for_byte(tmp_path: Path) -> None:
+    """A rerun whose finished results match is skipped and writes nothing: not its metrics, not
+    Hydra's ``cli.log`` or ``.hydra/`` (which Hydra used to append to and rewrite at job start)."""
+    run_dir = tmp_path / "run"
+    args = ["+experiment=tiny", "max_frames=4", f"hydra.run.dir={run_dir}"]
+    first = run_cli(args)
+    assert first.code == 0, first.stderr
+    done = files(run_dir)
+    assert {".hydra/config.yaml", ".hydra/hydra.yaml", ".hydra/overrides.yaml", "cli.log"} <= set(done), sorted(done)
+    assert b"max_frames=4" in done[".hydra/overrides.yaml"] and done["cli.log"].strip()
+    again = run_cli(args)
+    assert again.code == 0, again.stderr
+    assert files(run_dir) == done
+
+
+def test_a_run_that_works_writes_hydras_files(tmp_path: Path) -> None:
+    """A job that records something keeps Hydra's files: its config as composed, and its log, the
+    lines logged before it decided to work included."""
+    run_dir = tmp_path / "run"
+    (tmp_path / "empty.txt").write_text("")
+    res = run_cli(["+experiment=tiny", f"dataset.route_file={tmp_path}/empty.txt", f"hydra.run.dir={run_dir}"])
+    assert res.code == 2
+    written = files(run_dir)
+    assert "empty.txt" in written[".hydra/config.yaml"].decode()
+    assert "empty.txt" in written[".hydra/overrides.yaml"].decode()
+    assert {"metrics.json", "config.yaml", "cli.log", ".hydra/hydra.yaml"} <= set(written), sorted(written)
