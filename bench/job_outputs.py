@@ -31,11 +31,11 @@ class HeldFileHandler(logging.Handler):
         self.held: list[logging.LogRecord] = []
         self.file: logging.FileHandler | None = None
 
-    def open(self) -> None:
-        """Start writing: the held records first, in order."""
+    def open(self, filename: str | None = None) -> None:
+        """Start writing, to ``filename`` if given: the held records first, in order."""
         if self.file is not None:
             return
-        self.file = logging.FileHandler(self.filename, self.mode, self.encoding)
+        self.file = logging.FileHandler(filename or self.filename, self.mode, self.encoding)
         self.file.setFormatter(self.formatter)
         self.file.setLevel(self.level)
         for record in self.held:
@@ -59,9 +59,10 @@ class HeldFileHandler(logging.Handler):
         super().close()
 
 
-def keep(out: Path, task_cfg: DictConfig | None = None) -> None:
+def keep(out: Path, task_cfg: DictConfig | None = None, into: Path | None = None) -> None:
     """The job running now records into ``out``: write its ``.hydra/`` configs as Hydra would have
-    (``config.yaml``, ``hydra.yaml``, ``overrides.yaml``) and open its held log.
+    (``config.yaml``, ``hydra.yaml``, ``overrides.yaml``) and open its held log, in ``into`` when
+    given (a redo's staging dir, whose files replace the run's only once it finishes).
 
     Does nothing outside a Hydra job, or for a dir that is not the job's own output dir (the sweeper
     records a job that never composed without a job of its own).
@@ -74,7 +75,8 @@ def keep(out: Path, task_cfg: DictConfig | None = None) -> None:
     runtime_dir = OmegaConf.select(hydra_cfg, "hydra.runtime.output_dir", default=None)
     if runtime_dir is None or Path(str(runtime_dir)).resolve() != Path(out).resolve():
         return
-    subdir = Path(out) / HYDRA_SUBDIR
+    where = Path(into or out)
+    subdir = where / HYDRA_SUBDIR
     subdir.mkdir(parents=True, exist_ok=True)
     files: dict[str, Any] = {"hydra.yaml": hydra_cfg, "overrides.yaml": hydra_cfg.hydra.overrides.task}
     if task_cfg is not None:
@@ -83,4 +85,4 @@ def keep(out: Path, task_cfg: DictConfig | None = None) -> None:
         (subdir / name).write_text(OmegaConf.to_yaml(node), encoding="utf-8")
     for handler in logging.getLogger().handlers:
         if isinstance(handler, HeldFileHandler):
-            handler.open()
+            handler.open(str(where / Path(handler.filename).name))

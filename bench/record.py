@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import socket
 from pathlib import Path
 from typing import Any
@@ -18,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from bench import job_outputs
-from bench.schema import METRICS_FILE
+from bench.schema import METRICS_FILE, REDO_DIR
 
 # statuses a refusal must not replace: finished results, a resumable run, a run that may still be going
 KEPT = ("ok", "lost", "interrupted", "running")
@@ -118,3 +119,22 @@ def _stat(pid: int) -> list[str] | None:
 def _start_ticks(pid: int) -> int | None:
     stat = _stat(pid)
     return int(stat[19]) if stat and len(stat) > 19 else None
+
+
+def promote(staged: Path, final: Path) -> None:
+    """Move a finished redo's files (``staged``, the run dir's ``REDO_DIR``) over the run it redid.
+
+    ``metrics.json`` moves after the files it describes and before the old run's leftovers go, so a
+    stop midway leaves either the old record (a rerun finds the finished redo and moves it in) or
+    the new one, never a record beside files of another run.
+    """
+    names = {p.name for p in staged.iterdir()}
+    for path in sorted(staged.iterdir(), key=lambda p: p.name == METRICS_FILE):
+        target = final / path.name
+        if path.is_dir() and target.is_dir():
+            shutil.rmtree(target)
+        os.replace(path, target)
+    for old in final.iterdir():
+        if old.name not in names and old.name != REDO_DIR:
+            shutil.rmtree(old) if old.is_dir() and not old.is_symlink() else old.unlink()
+    staged.rmdir()

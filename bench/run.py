@@ -44,7 +44,7 @@ from bench.measure import MemoryProbe, PhaseTimer
 from bench.metrics.image import MS_SSIM_MIN_PX
 from bench.metrics.trajectory import TumAppender
 from bench.progress import Phase
-from bench.record import is_leftover, owner, read_record, record_refusal, write_json, write_text
+from bench.record import is_leftover, owner, promote, read_record, record_refusal, write_json, write_text
 from bench.resume import redo_reason
 from bench.signals import Interrupted, Preemption, deferred_signals, held_preemption, raise_on_signals
 from bench.slam.se3 import inverse
@@ -143,11 +143,20 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: B
     }  # fmt: skip
     start: dict[str, Any] | None = None  # the checkpoint a resumed run starts from
     level = logging.INFO  # of the redo line: a warning when a checkpoint was there but unusable
+    final = out  # the run dir; a redo of a finished run works in its staging dir until it finishes
+    reason = redo_reason(stored, keys) if conf.resume else "resume=false"
+    if conf.resume and reason is None:
+        log.info("skipping %s: completed results of the same config, code and inputs exist", out)
+        return RunResult(stored["status"], out, stored.get("metrics", {}), stored.get("error"), skipped=True)
+    if stored is not None and stored.get("status") in schema.FINISHED:
+        out, metrics_path = out / schema.REDO_DIR, out / schema.REDO_DIR / schema.METRICS_FILE
+        make_out_dir(out)
+        staged = _previous(out)  # a redo stopped earlier: its checkpoint lets this one resume
+        if conf.resume and staged is not None and redo_reason(staged, keys) is None:
+            promote(out, final)  # a redo that finished but was stopped while moving in
+            return RunResult(staged["status"], final, staged.get("metrics", {}), staged.get("error"), skipped=True)
+        stored = staged or stored
     if conf.resume:
-        reason = redo_reason(stored, keys)
-        if reason is None:
-            log.info("skipping %s: completed results of the same config, code and inputs exist", out)
-            return RunResult(stored["status"], out, stored.get("metrics", {}), stored.get("error"), skipped=True)
         if stored is not None and stored.get("status") == "interrupted" and ckpt.exists(out):
             start, why = ckpt.find(out, keys, flushed_rows(out))
             if start is None:
@@ -155,8 +164,8 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: B
         if start is not None:
             log.info("resuming %s from frame %d (checkpoint of keyframe %d)", out, start["frame"], start["keyframe"])
         elif stored is not None:
-            log.log(level, "redoing %s: %s", out, reason)
-    job_outputs.keep(out, cfg)
+            log.log(level, "redoing %s: %s", final, reason)
+    job_outputs.keep(final, cfg, out)
     write_text(out / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
     record["checkpoint"] = {"every": conf.checkpoint.every, "written": 0, "mib_last": None, "write_s_total": 0.0,
                             "resumed_from_frames": []}  # fmt: skip
@@ -197,6 +206,9 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: B
         write_json(metrics_path, record)
         if status != "interrupted":
             ckpt.remove(out)  # finished (or failed on its data): a rerun never resumes it
+            if out != final and status in schema.FINISHED:
+                promote(out, final)  # only a redo that finishes replaces the finished record
+                out = final
     if stop is not None:
         if preempt.signum is not None and preempt.signum == stop.signum:
             log.warning("%s: preempted after %d frames; checkpoint written, the launcher requeues the job",

@@ -19,6 +19,9 @@ MIB = float(2**20)  # bytes per MiB: every *_mib figure
 STATUSES: tuple[str, ...] = ("ok", "lost", "failed", "interrupted", "running")
 FINISHED: tuple[str, ...] = ("ok", "lost")  # a rerun of the same config skips these
 UNFINISHED: tuple[str, ...] = ("running", "interrupted")  # left out of tables and plots
+# where a redo of a finished run works (its record, checkpoints and files) until it finishes too;
+# only then do its files replace the finished run's (bench.record.promote)
+REDO_DIR = ".redo"
 
 
 @dataclass(frozen=True)

@@ -103,6 +103,41 @@ def test_killed_run_is_reported_interrupted_by_the_next_run(tmp_path: Path) -> N
     assert json.loads((run_dir / "metrics.json").read_text())["status"] == "ok"
 
 
+
+def _tree(run_dir: Path) -> dict[str, bytes]:
+    """Every file of the run dir but a redo's staging dir, by path."""
+    return {str(p.relative_to(run_dir)): p.read_bytes() for p in sorted(run_dir.rglob("*"))
+            if p.is_file() and ".redo" not in p.relative_to(run_dir).parts}
+
+
+@pytest.mark.slow
+def test_a_redo_replaces_a_finished_run_only_when_it_finishes(tmp_path: Path) -> None:
+    """A redo of a finished run (another config, or new code, in the same dir) works in the dir's
+    ``.redo/``: stopped part-way, it leaves the finished run's files byte for byte; finished, its
+    files replace the old ones, leftovers of the old run included."""
+    run_dir = tmp_path / "run"
+    first = run([*TINY, "max_frames=4", f"hydra.run.dir={run_dir}"], tmp_path)
+    assert first.returncode == 0, first.stderr
+    (run_dir / "stale_from_old_run.txt").write_text("x")
+    finished = _tree(run_dir)
+    redo = [*TINY, "max_frames=40", f"hydra.run.dir={run_dir}"]
+    proc = start(redo, tmp_path)
+    wait_for_frames(proc, run_dir / ".redo", 3)
+    assert _tree(run_dir) == finished  # at work: the finished run untouched, cli.log and .hydra/ included
+    proc.send_signal(signal.SIGINT)
+    _, stderr = proc.communicate(timeout=300)
+    assert proc.returncode == 128 + signal.SIGINT, stderr
+    assert f"partial results in {run_dir / '.redo'}" in one_error_line(stderr)
+    assert _tree(run_dir) == finished  # stopped: still the finished run
+    assert json.loads((run_dir / ".redo" / "metrics.json").read_text())["status"] == "interrupted"
+    assert read_run(run_dir)["status"] == "ok"
+    done = run([*redo[:-2], "max_frames=6", redo[-1]], tmp_path)  # another redo, which finishes
+    assert done.returncode == 0, done.stderr
+    record = json.loads((run_dir / "metrics.json").read_text())
+    assert record["status"] == "ok" and record["metrics"]["num_frames"] == 6
+    assert not (run_dir / ".redo").exists() and not (run_dir / "stale_from_old_run.txt").exists()
+    assert tracked(run_dir) == 6 and "max_frames=6" in (run_dir / ".hydra" / "overrides.yaml").read_text()
+
 def _kitti_args(root: Path, tmp_path: Path) -> list[str]:
     # not +experiment=tiny: its dataset.width/height are synthetic-only settings
     return ["threads=1", "eval.lpips=false", "slam.mapping_iters=30", "dataset=kitti", "seq=6",
@@ -142,3 +177,12 @@ def test_rerun_after_an_input_file_changed_is_redone_and_says_why(make_kitti_cop
     assert third.returncode == 0, third.stderr
     assert f"redoing {tmp_path / 'run'}: input files changed: sequences/06/times.txt" in third.stdout
     shutil.rmtree(tmp_path / "cache", ignore_errors=True)
+
+
+def test_the_report_leaves_a_redos_staging_dir_out(tmp_path: Path) -> None:
+    from bench.report.collect import find_run_dirs
+
+    for d in (tmp_path / "a", tmp_path / "a" / ".redo"):
+        d.mkdir(parents=True)
+        (d / "metrics.json").write_text("{}")
+    assert find_run_dirs([tmp_path]) == [tmp_path / "a"]

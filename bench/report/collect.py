@@ -48,7 +48,8 @@ class Collection:
 
 
 def find_run_dirs(roots: Iterable[Path]) -> list[Path]:
-    """Every dir holding ``metrics.json`` under ``roots`` (recursive, deduplicated, sorted)."""
+    """Every dir holding ``metrics.json`` under ``roots`` (recursive, deduplicated, sorted), a redo's
+    staging dir (``schema.REDO_DIR``) left out."""
     found: dict[Path, Path] = {}
     for root in roots:
         root = Path(root)
@@ -59,7 +60,8 @@ def find_run_dirs(roots: Iterable[Path]) -> list[Path]:
                 raise ReportError(f"expected a sweep or run dir, found the file '{root}'")
             candidates = [root]
         else:
-            candidates = sorted(root.rglob(schema.METRICS_FILE))
+            # a redo's staging dir is not a run of its own: it replaces its run's files once it finishes
+            candidates = sorted(m for m in root.rglob(schema.METRICS_FILE) if schema.REDO_DIR not in m.parts)
         for metrics in candidates:
             found.setdefault(metrics.parent.resolve(), metrics.parent)
     return sorted(found.values(), key=lambda p: str(p))
