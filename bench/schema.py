@@ -1,8 +1,8 @@
 """The run directory's format: every field of ``metrics.json`` and ``keyframes.csv``, with its unit.
 
-The writer (``bench.run``), the report reader (``bench.report``) and the README's run-directory
-tables all follow this module; ``tests/test_schema.py`` checks the README against ``markdown()``.
-Regenerate the README block with ``python -m bench.schema``.
+The writer (``bench.run``), the report reader (``bench.report``) and the docs' run-directory tables
+(``docs/run-directory.md``) all follow this module; ``tests/test_schema.py`` checks that page against
+``markdown()``. Regenerate its block from what ``python -m bench.schema`` prints.
 """
 
 from __future__ import annotations
@@ -215,7 +215,7 @@ def _table(fields: Sequence[Field]) -> list[str]:
 
 
 def markdown() -> str:
-    """The README's run-directory field tables, generated from this module."""
+    """The run-directory field tables of ``docs/run-directory.md``, generated from this module."""
     lines = [
         f"`{METRICS_FILE}` `run` block:",
         "",

@@ -225,11 +225,11 @@ def test_checkpoint_config_is_checked(every: int, keep: int, message: str) -> No
         CheckpointConfig(every=every, keep=keep)
 
 
-def test_the_readme_lists_exactly_what_a_resume_may_change() -> None:
-    """The fields the resume tests let differ are the ones README's "Checkpoints" names, no more."""
-    text = " ".join((REPO / "README.md").read_text().split())
+def test_the_docs_list_exactly_what_a_resume_may_change() -> None:
+    """The fields the resume tests let differ are the ones docs/cli.md's "Checkpoints" names, no more."""
+    text = " ".join((REPO / "docs" / "cli.md").read_text().split())
     said = re.search(r"memory peaks \(metrics `([^`]+)`; `keyframes.csv` `([^`]+)`", text)
-    assert said, "README, Checkpoints: the list of what a resumed run may change is gone"
+    assert said, "docs/cli.md, Checkpoints: the list of what a resumed run may change is gone"
     assert set(said[1].split()) == VOLATILE_METRICS
     assert set(said[2].split()) == VOLATILE_KEYFRAME_COLUMNS
 

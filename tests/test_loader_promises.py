@@ -1,6 +1,6 @@
-"""Every loader keeps the README's promise on refused input (issue 40, class H).
+"""Every loader keeps the documented promise on refused input (issue 40, class H).
 
-README, "Errors": bad data files (a missing path, a malformed file, NaN poses, duplicate or unsorted
+docs/cli.md, "Errors": bad data files (a missing path, a malformed file, NaN poses, duplicate or unsorted
 timestamps, a singular calibration) are found when the data is opened, before the SLAM loop. This
 is that promise for every loader and every kind of file it reads, opened directly (an accepted
 file would otherwise cost a whole run). The EuRoC camera list and ground truth and the KITTI
@@ -99,7 +99,7 @@ def _open(dataset: str, root: Path, seq: str) -> None:
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
-def test_a_loader_refuses_what_the_readme_says_it_refuses(name: str, tmp_path: Path,
+def test_a_loader_refuses_what_the_docs_say_it_refuses(name: str, tmp_path: Path,
                                                            request: pytest.FixtureRequest) -> None:
     dataset, rel, edit, says = CASES[name]
     root, seq = _root(dataset, tmp_path, request)

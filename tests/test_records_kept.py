@@ -51,7 +51,7 @@ def test_refused_run_keeps_the_previous_record(tmp_path: Path, status: str, rout
 
 
 def test_refused_run_in_a_fresh_dir_is_recorded_failed(tmp_path: Path) -> None:
-    """Where no previous run left a record, the refusal is recorded as before (README, Errors)."""
+    """Where no previous run left a record, the refusal is recorded as before (docs/cli.md, Errors)."""
     run_dir = tmp_path / "run"
     (tmp_path / "empty.txt").write_text("")
     res = run_cli(["+experiment=tiny", f"dataset.route_file={tmp_path}/empty.txt", f"hydra.run.dir={run_dir}"])

@@ -1,4 +1,4 @@
-"""The run-directory schema: one source for the writer, the report reader and the README."""
+"""The run-directory schema: one source for the writer, the report reader and the docs' run-directory page."""
 
 from __future__ import annotations
 
@@ -9,15 +9,15 @@ import pandas as pd
 from bench import schema
 from bench.report.plots import peak_column
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+PAGE = Path(__file__).resolve().parents[1] / "docs" / "run-directory.md"
 BEGIN, END = "<!-- run-dir-schema:begin (python -m bench.schema) -->", "<!-- run-dir-schema:end -->"
 
 
-def test_readme_tables_are_the_schema():
-    text = README.read_text()
-    assert BEGIN in text and END in text, "README lacks the generated run-directory block"
+def test_docs_tables_are_the_schema():
+    text = PAGE.read_text()
+    assert BEGIN in text and END in text, "docs/run-directory.md lacks the generated run-directory block"
     block = text.split(BEGIN, 1)[1].split(END, 1)[0].strip()
-    assert block == schema.markdown().strip(), "README run-directory tables are stale: run python -m bench.schema"
+    assert block == schema.markdown().strip(), "docs/run-directory.md tables are stale: run python -m bench.schema"
 
 
 def test_report_columns_are_schema_fields():

@@ -1,4 +1,4 @@
-"""The README's example plugin, installed as a package, runs by name without any config file."""
+"""The example plugin of docs/writing-a-strategy.md, installed as a package, runs by name without a config file."""
 
 from __future__ import annotations
 
@@ -19,11 +19,11 @@ TINY = ["dataset.width=48", "dataset.height=32", "dataset.n_frames=4", "slam.tra
         "slam.mapping_iters=4", "slam.refine_iters=0", "eval.lpips=false"]  # fmt: skip
 
 
-def test_readme_shows_the_example_plugin_verbatim():
-    readme = (REPO / "README.md").read_text()
-    blocks = re.findall(r"```python\n(.*?)```", readme, flags=re.S)
+def test_docs_show_the_example_plugin_verbatim():
+    page = (REPO / "docs" / "writing-a-strategy.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", page, flags=re.S)
     assert (EXAMPLE / "nearest_pruning.py").read_text() in blocks
-    entry = re.search(r'\[project.entry-points."pocketbench.strategies"\]\nnearest = "[^"]+"', readme)
+    entry = re.search(r'\[project.entry-points."pocketbench.strategies"\]\nnearest = "[^"]+"', page)
     assert entry and entry.group(0) in (EXAMPLE / "pyproject.toml").read_text()
 
 
