@@ -31,7 +31,7 @@ measured on this machine.
       them through weakref callbacks. Public API, but a Python call per aten op, and blind to
       kernel-internal temporaries.
 
-    The overhead of each method is measured by ``benchmarks/probe_overhead.py`` (figures in the
+    The overhead of each method is measured by ``profiling/probe_overhead.py`` (figures in the
     README and the issue notes, not here): a cost per alloc/free event plus a fixed cost per window,
     so it shrinks as ops get larger. Pass ``torch_live=False`` to skip it (also when running
     ``torch.profiler`` yourself: only one profiler can be active). On CUDA devices the figure is

@@ -56,7 +56,7 @@ def wheel_venv(tmp_path_factory) -> Path:
     assert build.returncode == 0, build.stderr[-2000:]
     make_venv(root / "venv")
     wheel = next((root / "dist").glob("pocketbench-*.whl"))
-    with zipfile.ZipFile(wheel) as zf:  # the packages only: no benchmarks/, tests/ or reports/
+    with zipfile.ZipFile(wheel) as zf:  # the packages only: no profiling/, tests/ or reports/
         top = {name.split("/", 1)[0] for name in zf.namelist()}
     assert top - {"bench", "strategies", "hydra_plugins"} == {f"pocketbench-{wheel.name.split('-')[1]}.dist-info"}, top
     install = subprocess.run([str(root / "venv" / "bin" / "python"), "-m", "pip", "install", "-q", "--no-deps",

@@ -462,7 +462,7 @@ class SyntheticSequence(TimedSequence):
         """Colour [H, W, 3] (supersampled) and exact z-depth [H, W] (pixel centres) for ``c2w``.
 
         ``brute_force`` tests every ray against every box of the scene: the reference the culled
-        cast must match pixel for pixel (the tests and benchmarks/synthetic_cost.py compare them).
+        cast must match pixel for pixel (the tests and profiling/synthetic_cost.py compare them).
         """
         s = self.supersample
         offs = (np.arange(s) + 0.5) / s - 0.5

@@ -54,7 +54,7 @@ from bench.slam.conic import conic
 # numba's threading layer: OpenMP first, the work queue where no OpenMP runtime is installed. A
 # work-queue worker wakes and parks through the OS on every kernel and then shares the cores with
 # torch's spinning OpenMP pool, which slowed the whole SLAM loop on a 2-core machine (measured with
-# benchmarks/loop_profile.py; the README gives the figures). numba chooses when its first parallel kernel runs,
+# profiling/loop_profile.py; the README gives the figures). numba chooses when its first parallel kernel runs,
 # from its config, which it re-reads from the environment; both are set, whichever module
 # imported numba first. A layer named in NUMBA_THREADING_LAYER still wins.
 _LAYERS = "omp workqueue tbb"

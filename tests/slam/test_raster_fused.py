@@ -221,7 +221,7 @@ def test_peak_memory_grows_with_gaussian_count():
     import sys
     from pathlib import Path
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "profiling"))
     from raster_bench import scene as bench_scene
 
     peaks = {}

@@ -1,7 +1,7 @@
 """One line per run dir: status, ATE, PSNR, FPS, wall time, and the CUDA (or CPU) peaks of the first,
 middle and last keyframe windows; for the GPU check of the gsplat backend (README).
 
-    python benchmarks/gpu_summary.py RUN_DIR [RUN_DIR ...]
+    python profiling/gpu_summary.py RUN_DIR [RUN_DIR ...]
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@
 # dependencies as wheels) and kitti/ (a KITTI root with sequence 06), on a machine with CUDA, nvcc
 # and ninja. Every step has its own timeout, cut to what is left before DEADLINE_S (from the start)
 # less what the steps after it are guaranteed, so a slow step cannot eat the whole call.
-#   OUT=DIR bash benchmarks/gpu_check.sh [TORCH_LAST_FRAME]
+#   OUT=DIR bash profiling/gpu_check.sh [TORCH_LAST_FRAME]
 # TORCH_LAST_FRAME: the torch runs stop at that frame index (default: all frames).
 set -u -o pipefail
 OUT=${OUT:-/tmp/gpu_check}
@@ -58,7 +58,7 @@ run() {  # NAME CAP RESERVE OVERRIDES...
     hydra.run.dir="$RUNS/$name" >"$RUNS/$name.out" 2>"$RUNS/$name.err"
   stamp "run $name rc=$?"
   tail -n 4 "$RUNS/$name.err"
-  python3 benchmarks/gpu_summary.py "$RUNS/$name" | tee -a "$OUT/summary.txt"
+  python3 profiling/gpu_summary.py "$RUNS/$name" | tee -a "$OUT/summary.txt"
 }
 run gsplat_none "$T_GS" 80 slam.raster_backend=gsplat
 run gsplat_pocket "$T_GS" 30 +strategy=pocket slam.raster_backend=gsplat

@@ -9,11 +9,11 @@ the same map, to show what both residuals read on a real loss. Frames where eith
 (``slam.lost_check=color``: residual above ``slam.lost_residual``; ``depth``: depth residual above its
 threshold; for ``lost_patience`` frames) are marked.
 
-    python benchmarks/lost_detector.py ... --kick-every=5 --out=PATH.csv [--plot=PATH.png]  # CSV rewritten per frame
-    python benchmarks/lost_detector.py --out=PATH.csv --plot=PATH.png   # the figure again from the CSV alone
-    python benchmarks/lost_detector.py --compare=LABEL:PATH.csv,LABEL:PATH.csv --plot=PATH.png  # configs side by side
+    python profiling/lost_detector.py ... --kick-every=5 --out=PATH.csv [--plot=PATH.png]  # CSV rewritten per frame
+    python profiling/lost_detector.py --out=PATH.csv --plot=PATH.png   # the figure again from the CSV alone
+    python profiling/lost_detector.py --compare=LABEL:PATH.csv,LABEL:PATH.csv --plot=PATH.png  # configs side by side
 
-    python benchmarks/lost_detector.py slam=splatam dataset.n_frames=200 dataset.width=160 dataset.height=96
+    python profiling/lost_detector.py slam=splatam dataset.n_frames=200 dataset.width=160 dataset.height=96
 """
 
 from __future__ import annotations

@@ -7,8 +7,8 @@ about the same at any length. For each drive length and route the script renders
 ways back to back in one process, checks the pixels are identical, and prints seconds per frame and
 the (ray, box) pairs slab-tested per frame, a count that does not depend on the machine's load.
 
-    python benchmarks/synthetic_cost.py                          # 40, 400, 1100 frames, both routes
-    python benchmarks/synthetic_cost.py --frames 40 400 --no-brute-force --routes grid
+    python profiling/synthetic_cost.py                          # 40, 400, 1100 frames, both routes
+    python profiling/synthetic_cost.py --frames 40 400 --no-brute-force --routes grid
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ process; ``vs_old`` is the old kernels' time over today's (above 1: today's are 
 that holds on a loaded machine where absolute times do not; ``vs_torch`` likewise is torch's time
 over the row's.
 
-    python benchmarks/raster_bench.py [--device cpu|cuda] [--repeats 5] [--backends torch,fused]
+    python profiling/raster_bench.py [--device cpu|cuda] [--repeats 5] [--backends torch,fused]
                                       [--scenes iso,aniso] [--points 20000x320x192,50000x640x384]
                                       [--old 641f0f0]
 """

@@ -12,9 +12,9 @@ same way) and prints:
   ``a * render + b`` over the pixels with depth) would add: what exposure changes cost;
 - a table that gives each cause its dB.
 
-    python benchmarks/fit_diagnosis.py                                   # KITTI 06 shared frames, 1/2, 20 frames
-    python benchmarks/fit_diagnosis.py --frames 51 --overrides "slam=faithful"
-    python benchmarks/fit_diagnosis.py --overrides "seq=04" --curve 100,300,1000
+    python profiling/fit_diagnosis.py                                   # KITTI 06 shared frames, 1/2, 20 frames
+    python profiling/fit_diagnosis.py --frames 51 --overrides "slam=faithful"
+    python profiling/fit_diagnosis.py --overrides "seq=04" --curve 100,300,1000
 
 Defaults: ``dataset=kitti dataset.root=<shared>/data/kitti seq=06`` (1/2 resolution), ``threads=2``.
 """

@@ -7,9 +7,9 @@ interleaved (base, probe, base, probe, ...) and medians compared, to cancel slow
 machine; the ratio of the fastest runs is printed too (interference only ever adds time). A fresh
 probe is made for each probed run, outside the timed part, so the baseline runs without one.
 
-    python benchmarks/probe_overhead.py                       # toy Gaussian optimisation, CPU
-    python benchmarks/probe_overhead.py --method dispatch-mode
-    python benchmarks/probe_overhead.py --workload mypkg.mod:func --device cuda
+    python profiling/probe_overhead.py                       # toy Gaussian optimisation, CPU
+    python profiling/probe_overhead.py --method dispatch-mode
+    python profiling/probe_overhead.py --workload mypkg.mod:func --device cuda
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ renders the run's final map (``map.ply``) at its estimated poses (``traj_est.txt
 share of pixels each mask keeps. No SLAM is rerun. The run's own figures in ``metrics.json`` are
 shown beside, as a check that the renders are the run's.
 
-    python benchmarks/score_protocols.py RUN_DIR [RUN_DIR ...] [--csv OUT.csv]
+    python profiling/score_protocols.py RUN_DIR [RUN_DIR ...] [--csv OUT.csv]
 """
 
 from __future__ import annotations

@@ -12,9 +12,9 @@ change to what the run computes) and prints two tables per config:
 Each part is timed exclusively (a part nested in another is billed to the inner one only), so the
 parts sum to the phase. Timers add a few microseconds per call.
 
-    python benchmarks/loop_profile.py                 # both defaults below
-    python benchmarks/loop_profile.py --only kitti    # or: --only synthetic
-    python benchmarks/loop_profile.py --overrides "dataset=synthetic +experiment=tiny"
+    python profiling/loop_profile.py                 # both defaults below
+    python profiling/loop_profile.py --only kitti    # or: --only synthetic
+    python profiling/loop_profile.py --overrides "dataset=synthetic +experiment=tiny"
 
 Defaults: the shared KITTI 06 frames at 1/2 resolution, first 20 frames
 (``dataset=kitti dataset.root=<shared>/data/kitti seq=06 max_frames=20``), and the synthetic

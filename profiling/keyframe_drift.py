@@ -7,8 +7,8 @@ own mapping. Where the first falls as later keyframes are mapped while the third
 disagree (stereo depth, exposure, motion) and mapping trades
 keyframe 0's fit for the newer one's.
 
-    python benchmarks/keyframe_drift.py dataset=kitti dataset.root=../shared/data/kitti seq=06
-    python benchmarks/keyframe_drift.py                       # the synthetic default
+    python profiling/keyframe_drift.py dataset=kitti dataset.root=../shared/data/kitti seq=06
+    python profiling/keyframe_drift.py                       # the synthetic default
 """
 
 from __future__ import annotations

@@ -6,8 +6,8 @@ a long drive reaches, N Gaussians with Adam moments, K keyframes, F tracked fram
 of keyframes.csv, and times ``bench.run.write_checkpoint`` on it, the same call the frame loop makes.
 The figure to compare with is a keyframe's own time (``map_s`` in keyframes.csv, seconds).
 
-    python benchmarks/checkpoint_cost.py                        # N = 10k, 30k, 100k, 300k; 400 frames
-    python benchmarks/checkpoint_cost.py --gaussians 50000 --frames 1100 --keyframes 370
+    python profiling/checkpoint_cost.py                        # N = 10k, 30k, 100k, 300k; 400 frames
+    python profiling/checkpoint_cost.py --gaussians 50000 --frames 1100 --keyframes 370
 """
 
 from __future__ import annotations

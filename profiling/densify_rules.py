@@ -5,7 +5,7 @@ Runs a drive with the loss checks off and prints, per keyframe before it densifi
 that the silhouette rule and the depth-error rule select, the depth-error threshold (mult x median), and then the
 Gaussians added and the map size.
 
-    python benchmarks/densify_rules.py slam=splatam dataset.n_frames=160 dataset.width=160 dataset.height=96 threads=1
+    python profiling/densify_rules.py slam=splatam dataset.n_frames=160 dataset.width=160 dataset.height=96 threads=1
 """
 
 from __future__ import annotations
