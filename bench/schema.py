@@ -1,6 +1,6 @@
 """The run directory's format: every field of ``metrics.json`` and ``keyframes.csv``, with its unit.
 
-The writer (``bench.run``), the report reader (``bench.report``) and the README's run-directory
+The writer (``bench.run.lifecycle``), the report reader (``bench.report``) and the README's run-directory
 tables all follow this module; ``tests/test_schema.py`` checks the README against ``markdown()``.
 Regenerate the README block with ``python -m bench.schema``.
 """
@@ -59,7 +59,7 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
     Field("track_s", "s", "tracking time of the keyframe's frame"),
     Field("map_s", "s", "mapping time"),
     Field("prune_s", "s", "pruning time"),
-    # the headline peak split into parts (bench/run.py:memory_parts); mem_state + mem_keyframes + mem_other +
+    # the headline peak split into parts (bench/run/lifecycle.py:memory_parts); mem_state + mem_keyframes + mem_other +
     # mem_work = the peak column (cuda_alloc_peak_mib on CUDA, torch_live_peak_mib on CPU), to rounding
     Field("mem_state_mib", "MiB", "Gaussian state at its largest in the window (after densification, during "
           "mapping): params, a gradient per param, Adam moments, strategy state; exact bytes"),

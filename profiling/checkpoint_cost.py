@@ -1,9 +1,9 @@
-"""Size and write time of one checkpoint (``bench/checkpoint.py``) for a map of N Gaussians.
+"""Size and write time of one checkpoint (``bench/run/checkpoint.py``) for a map of N Gaussians.
 
 What a checkpoint costs grows with the map (parameters, Adam moments, per-Gaussian state: the
 keyframe store is saved by index, poses are 64 B a frame), so this builds a SLAM system in the state
 a long drive reaches, N Gaussians with Adam moments, K keyframes, F tracked frames and F / K rows
-of keyframes.csv, and times ``bench.run.write_checkpoint`` on it, the same call the frame loop makes.
+of keyframes.csv, and times ``bench.run.lifecycle.write_checkpoint`` on it, the same call the frame loop makes.
 The figure to compare with is a keyframe's own time (``map_s`` in keyframes.csv, seconds).
 
     python profiling/checkpoint_cost.py                        # N = 10k, 30k, 100k, 300k; 400 frames
@@ -23,11 +23,11 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench import schema  # noqa: E402
-from bench.config import RunConfig  # noqa: E402
-from bench.measure import MemoryProbe, PhaseTimer  # noqa: E402
-from bench.run import Drive, Parts, write_checkpoint  # noqa: E402
+from bench.config.compose import RunConfig  # noqa: E402
+from bench.measure.memory import MemoryProbe, PhaseTimer  # noqa: E402
+from bench.run.lifecycle import Drive, Parts, write_checkpoint  # noqa: E402
+from bench.slam.strategy import CheckedStrategy, load_strategy  # noqa: E402
 from bench.slam.system import SlamConfig, System, _Keyframe  # noqa: E402
-from bench.strategy import CheckedStrategy, load_strategy  # noqa: E402
 
 
 def long_drive_system(n: int, keyframes: int, frames: int, hw: tuple[int, int] = (192, 320)) -> System:

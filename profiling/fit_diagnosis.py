@@ -63,11 +63,11 @@ def main() -> None:
     ap.add_argument("--curve", default="50,100,200,500", help="mapping iterations at which keyframe 0 is scored")
     args = ap.parse_args()
 
-    from bench.cli import compose
-    from bench.determinism import repeatable
-    from bench.run import open_seq
+    from bench.cli.entry import compose
+    from bench.cli.validate import validate
+    from bench.run.determinism import repeatable
+    from bench.run.lifecycle import open_seq
     from bench.slam.system import System
-    from bench.validate import validate
 
     overrides = [*shlex.split(DEFAULT), *shlex.split(args.overrides)]
     built = validate(compose(overrides))

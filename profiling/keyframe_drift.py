@@ -23,14 +23,14 @@ sys.path.insert(0, str(ROOT))  # measure the checkout this file sits in
 
 
 def main() -> None:
-    from bench.cli import compose
-    from bench.determinism import repeatable
+    from bench.cli.entry import compose
+    from bench.cli.validate import validate
     from bench.metrics.image import region_psnr_db
-    from bench.run import open_seq
+    from bench.run.determinism import repeatable
+    from bench.run.lifecycle import open_seq
     from bench.slam.raster import rasterize
     from bench.slam.se3 import inverse
     from bench.slam.system import System
-    from bench.validate import validate
 
     built = validate(compose(["threads=1", *sys.argv[1:]]))
     cfg = built.config

@@ -1,6 +1,6 @@
 """Where the SLAM loop's time goes: per phase, and per part of one optimisation iteration.
 
-Runs one ordinary ``bench.run.run`` of a config with timers wrapped around the loop's parts (no
+Runs one ordinary ``bench.run.lifecycle.run`` of a config with timers wrapped around the loop's parts (no
 change to what the run computes) and prints two tables per config:
 
 - per phase (tracking, mapping, densification, pruning, evaluation, refinement): seconds, share of
@@ -85,7 +85,7 @@ class Profile:
     """Patches the loop's functions with timers; ``phase`` is the phase the loop is in."""
 
     def __init__(self) -> None:
-        from bench import run as run_mod
+        from bench.run import lifecycle as run_mod
         from bench.slam import raster, raster_fused, system
 
         self.clock = Clock()
@@ -193,8 +193,8 @@ def warm_up() -> None:
 
 
 def profile(prof: Profile, overrides: list[str]) -> str:
-    from bench.cli import compose
-    from bench.run import run
+    from bench.cli.entry import compose
+    from bench.run.lifecycle import run
 
     prof.reset()
     cfg = compose([*overrides, "progress=false"])

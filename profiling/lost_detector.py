@@ -27,13 +27,13 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.cli import compose  # noqa: E402
-from bench.config import to_run_config  # noqa: E402
-from bench.determinism import repeatable  # noqa: E402
-from bench.run import open_seq  # noqa: E402
+from bench.cli.entry import compose  # noqa: E402
+from bench.config.compose import to_run_config  # noqa: E402
+from bench.run.determinism import repeatable  # noqa: E402
+from bench.run.lifecycle import open_seq  # noqa: E402
 from bench.slam.se3 import inverse  # noqa: E402
+from bench.slam.strategy import load_strategy  # noqa: E402
 from bench.slam.system import System  # noqa: E402
-from bench.strategy import load_strategy  # noqa: E402
 
 KICK_M = 1.0
 

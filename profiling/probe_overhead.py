@@ -1,4 +1,4 @@
-"""Wall-time overhead of ``bench.measure.MemoryProbe`` on a workload, with and without the probe.
+"""Wall-time overhead of ``bench.measure.memory.MemoryProbe`` on a workload, with and without the probe.
 
 A workload is any function ``workload(window) -> None`` that wraps each keyframe window in
 ``with window(): ...``; the script passes a no-op window for the baseline and one that calls
@@ -28,7 +28,7 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.measure import MemoryProbe  # noqa: E402
+from bench.measure.memory import MemoryProbe  # noqa: E402
 
 Window = Callable[[], AbstractContextManager[None]]
 Workload = Callable[[Window], None]

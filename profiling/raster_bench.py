@@ -6,7 +6,7 @@ inputs: ``iso``, Gaussians back-projected from random pixels at 3-23 m with a ro
 scales from 0.37x to 2.7x of that footprint. Times are the minimum over ``--repeats`` calls (the
 machine's load only ever adds time). ``pairs`` counts contributing (pixel, Gaussian) pairs, the
 work the compositing does, and ``ns_pair`` divides forward+backward time by it. The peak is the
-live-tensor peak of ``bench.measure.MemoryProbe`` over one forward+backward (CUDA: the allocator
+live-tensor peak of ``bench.measure.memory.MemoryProbe`` over one forward+backward (CUDA: the allocator
 peak), and bytes per Gaussian divide it by N.
 
 ``--old REV`` adds a row ``fused@REV``: the fused kernels of git revision REV (loaded from
@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # the checkout this file sits in, not whichever one is pip-installed
 
 import bench.slam  # noqa: E402
-from bench.measure import MemoryProbe  # noqa: E402
+from bench.measure.memory import MemoryProbe  # noqa: E402
 from bench.slam.raster import rasterize  # noqa: E402
 
 DEFAULT_POINTS = "2000x96x64,5000x160x96,20000x160x96,20000x320x192,50000x320x192,50000x640x384"

@@ -29,12 +29,12 @@ PROTOCOLS = ("full", "splatam", "released")
 
 
 def score_run(run_dir: Path, protocols: tuple[str, ...] = PROTOCOLS) -> list[dict]:
-    from bench.export import MAP_FILE, read_ply
+    from bench.cli.validate import validate
     from bench.metrics.protocol import frame_metrics, mean_metrics, protocol_mask
     from bench.metrics.trajectory import read_tum
-    from bench.run import _eval_depth_range, open_seq
+    from bench.run.export import MAP_FILE, read_ply
+    from bench.run.lifecycle import _eval_depth_range, open_seq
     from bench.slam.raster import rasterize
-    from bench.validate import validate
 
     built = validate(OmegaConf.load(run_dir / "config.yaml"))
     cfg = built.config

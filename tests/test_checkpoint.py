@@ -20,11 +20,11 @@ from pathlib import Path
 import pytest
 import torch
 
-from bench import checkpoint as ckpt
-from bench.checkpoint import CheckpointConfig
-from bench.determinism import VOLATILE_KEYFRAME_COLUMNS, VOLATILE_METRICS, repeatable_metrics
 from bench.errors import ConfigError
-from bench.run import TEST_SIGNAL_ENV
+from bench.run import checkpoint as ckpt
+from bench.run.checkpoint import CheckpointConfig
+from bench.run.determinism import VOLATILE_KEYFRAME_COLUMNS, VOLATILE_METRICS, repeatable_metrics
+from bench.run.lifecycle import TEST_SIGNAL_ENV
 
 REPO = Path(__file__).resolve().parents[1]
 EVERY = 2  # keyframes between checkpoints: leaves keyframes between two checkpoints to cut on resume

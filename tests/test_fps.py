@@ -25,8 +25,8 @@ REPO = Path(__file__).resolve().parents[1]
 PROBE = r"""
 import json, resource, sys
 import numba
-from bench import cli
-import bench.run as R
+from bench.cli import entry as cli
+import bench.run.lifecycle as R
 import bench.slam.raster_fused as rf
 from bench.slam.system import System
 
@@ -80,7 +80,7 @@ def test_the_first_job_of_a_process_runs_like_the_next(tmp_path: Path) -> None:
 
 def test_a_single_run_does_not_spin_idle_openmp_workers() -> None:
     """OMP_WAIT_POLICY=PASSIVE before torch loads its OpenMP runtime, unless the user set one."""
-    code = "import os, bench.cli, torch; print(os.environ.get('OMP_WAIT_POLICY'))"
+    code = "import os, bench.cli.entry, torch; print(os.environ.get('OMP_WAIT_POLICY'))"
     env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
     env["PYTHONPATH"] = f"{REPO}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from bench.cli import help_groups
+from bench.cli.entry import help_groups
 from bench.conf import CONF_DIR
 from tests.conftest import make_venv
 
@@ -36,7 +36,7 @@ def test_help_lists_choices_and_examples_not_internal_groups(tmp_path):
 
 
 def test_help_groups_include_installed_plugins(monkeypatch):
-    monkeypatch.setattr("bench.strategy.available", lambda: ["pocket", "zz_plugin"])
+    monkeypatch.setattr("bench.slam.strategy.available", lambda: ["pocket", "zz_plugin"])
     assert "zz_plugin" in next(ln for ln in help_groups().splitlines() if "strategy:" in ln)
 
 

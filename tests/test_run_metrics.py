@@ -7,8 +7,8 @@ import json
 import pytest
 from hydra import compose, initialize_config_dir
 
-from bench.cli import CONF_DIR  # importing the CLI registers the schemas the configs build on
-from bench.run import run
+from bench.cli.entry import CONF_DIR  # importing the CLI registers the schemas the configs build on
+from bench.run.lifecycle import run
 
 TINY = ["dataset.width=48", "dataset.height=32", "dataset.n_frames=4", "slam.tracking_iters=4",
         "slam.mapping_iters=4", "slam.refine_iters=3", "eval.lpips=false", "progress=false"]  # fmt: skip

@@ -6,7 +6,7 @@ import sys
 from collections.abc import Mapping
 from typing import Any
 
-from bench import registry
+from bench.config import plugins as registry
 from bench.datasets.base import Frame, Sequence
 from bench.errors import DatasetError
 

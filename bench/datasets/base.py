@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from bench.config.settings import check_rules, setting
 from bench.errors import ConfigError
-from bench.typed import check_rules, setting
 
 MISSING_VALUE = "???"  # OmegaConf's marker for a setting that has no default
 

@@ -24,12 +24,12 @@ import cv2
 import numpy as np
 import yaml
 
+from bench.config.settings import as_config, setting
 from bench.datasets import _realio as realio
 from bench.datasets.base import Sequence
 from bench.datasets.stereo import DepthCache, StereoConfig, StereoParams, StereoSequence
+from bench.datasets.timestamp_order import order_problem
 from bench.errors import DatasetError
-from bench.stamps import order_problem
-from bench.typed import as_config, setting
 
 LOG = logging.getLogger("bench.datasets.euroc")
 DATASET = "euroc"

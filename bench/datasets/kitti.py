@@ -17,12 +17,12 @@ from typing import Any
 
 import numpy as np
 
+from bench.config.settings import as_config, setting
 from bench.datasets import _realio as realio
 from bench.datasets.base import Sequence
 from bench.datasets.stereo import DepthCache, StereoConfig, StereoSequence
+from bench.datasets.timestamp_order import order_problem
 from bench.errors import DatasetError
-from bench.stamps import order_problem
-from bench.typed import as_config, setting
 
 LOG = logging.getLogger("bench.datasets.kitti")
 DATASET = "kitti"

@@ -23,9 +23,9 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+from bench.config.settings import SEED_MAX, as_config, setting
 from bench.datasets.base import DatasetConfig, TimedSequence
 from bench.errors import ConfigError, DatasetError
-from bench.typed import SEED_MAX, as_config, setting
 
 CAMERA_HEIGHT_M = 1.6
 SKY_RADIUS_M = 120.0

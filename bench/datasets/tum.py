@@ -21,11 +21,11 @@ from typing import Any
 import numpy as np
 import torch
 
+from bench.config.settings import as_config, setting
 from bench.datasets import _realio as realio
 from bench.datasets.base import RecordedConfig, Sequence, TimedSequence
+from bench.datasets.timestamp_order import order_problem
 from bench.errors import ConfigError, DatasetError
-from bench.stamps import order_problem
-from bench.typed import as_config, setting
 
 LOG = logging.getLogger("bench.datasets.tum")
 DATASET = "tum"

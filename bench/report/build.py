@@ -18,7 +18,7 @@ from bench.report.names import use_method_names
 from bench.report.paper import load_paper_tables
 from bench.report.plots import DPI, make_plots, read_keyframes
 from bench.report.render import tables_markdown, to_latex
-from bench.report.scale import MILESTONES_FILE, read_milestones, scale_markdown
+from bench.report.route_scale import MILESTONES_FILE, read_milestones, scale_markdown
 from bench.report.settings import mixed_settings, settings_markdown
 from bench.report.stats import confidence_interval
 from bench.report.tables import SELECTABLE_METRICS, Table, build_tables
@@ -125,7 +125,7 @@ def _make_report(
     seed_statistics(tables, baseline).to_csv(files[-1], index=False)
 
     long_drives = any(len(t) for t in milestones.values())
-    if long_drives:  # runs made with eval.at_frames: the scale section (bench/report/scale.py)
+    if long_drives:  # runs made with eval.at_frames: the scale section (bench/report/route_scale.py)
         files.append(out / MILESTONES_FILE)
         stacked = stack_run_tables(milestones)
         stacked.to_csv(files[-1], index=False)

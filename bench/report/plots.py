@@ -24,7 +24,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 from matplotlib.ticker import FormatStrFormatter, NullFormatter
 
-from bench import schema, viz
+from bench import schema
 from bench.errors import MetricError, ReportError
 from bench.metrics.trajectory import (
     MAX_DIFF_S,
@@ -35,6 +35,7 @@ from bench.metrics.trajectory import (
     read_tum,
 )
 from bench.report.collect import is_missing, read_run_table
+from bench.report.figures import pruned_run as viz
 from bench.report.names import dataset_name, file_token, method_name, sequence_sort_key
 from bench.report.style import (
     Panel,
@@ -552,7 +553,7 @@ def plot_pruned(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: War
 def plot_milestones(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn) -> Path | None:
     """ATE and PSNR at each ``eval.at_frames`` milestone against the distance driven by then: what
     drives of those lengths score, from the same runs."""
-    from bench.report.scale import read_milestones
+    from bench.report.route_scale import read_milestones
 
     one = runs[runs["seq"] == seq]
     cache: dict[str, pd.DataFrame | None] = {}
@@ -801,7 +802,7 @@ def _make_plots(runs: pd.DataFrame, out: Path, warn: Warn) -> list[Path]:
         for seq in sorted(set(ds["seq"]), key=lambda s: sequence_sort_key(dataset, s)):
             for stem, title, rows in PER_KEYFRAME:
                 written.append(plot_per_keyframe(ds, dataset, seq, out, warn, stem, title, rows))
-            if _output["long_drives"]:  # the scale study's figures (bench/report/scale.py)
+            if _output["long_drives"]:  # the scale study's figures (bench/report/route_scale.py)
                 written.append(plot_per_keyframe(ds, dataset, seq, out, warn, *MEMORY_VS_DISTANCE, x_col="distance_m"))
                 written.append(plot_milestones(ds, dataset, seq, out, warn))
                 written.append(plot_drift(ds, dataset, seq, out, warn))

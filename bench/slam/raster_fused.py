@@ -29,7 +29,7 @@ Design choices, and why:
   into contiguous halves of the image, so that a thread given the sky does not wait for the one
   given the road. Which thread runs a tile changes nothing in its result.
 - Every buffer the kernels fill is a torch tensor (they receive numpy views), so the live-tensor
-  memory probe of ``bench/measure.py`` counts it. Only each thread's tile state (10-15 floats per
+  memory probe of ``bench/measure/memory.py`` counts it. Only each thread's tile state (10-15 floats per
   pixel of one tile, under 16 KiB) and the kernels' scalars live outside torch.
 - float32 throughout, with float32 literals: numba promotes mixed int/float32 arithmetic to float64.
 """

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from bench.config.settings import as_config
 from bench.datasets.base import Frame
 from bench.errors import ConfigError, TrackingLost
 from bench.metrics.image import region_psnr_db
@@ -30,8 +31,7 @@ from bench.slam.gaussians import GaussianMap, LearningRates
 from bench.slam.losses import dssim
 from bench.slam.raster import BACKENDS, RasterOutput, rasterize
 from bench.slam.se3 import inverse, se3_exp, so3_log
-from bench.strategy import MappingContext, PruneConfig, PruneContext, Strategy, TrackingContext
-from bench.typed import as_config
+from bench.slam.strategy import MappingContext, PruneConfig, PruneContext, Strategy, TrackingContext
 
 log = logging.getLogger(__name__)
 
@@ -725,7 +725,7 @@ class System:
         if keep is not None:
             keep = keep.to(torch.bool) | is_new  # new Gaussians are exempt whatever the strategy says
         n_removed = 0 if keep is None else self.map.remove(keep)
-        if self.on_prune is not None:  # viz.pruning (bench/viz.py): `out` is the render before the prune
+        if self.on_prune is not None:  # viz.pruning (figures.pruned_run): `out` is the render before the prune
             self.on_prune(kf_idx, w2c, out, keep)
         if result is not None:
             t0 = time.perf_counter()

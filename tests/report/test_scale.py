@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from bench.report.plots import distance_driven
-from bench.report.scale import _answer, _reference_length, run_slopes, sequence_lengths
+from bench.report.route_scale import _answer, _reference_length, run_slopes, sequence_lengths
 from bench.report.tables import variants
 
 

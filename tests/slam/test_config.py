@@ -1,8 +1,8 @@
 import pytest
 
+from bench.config.settings import as_config
 from bench.errors import ConfigError
 from bench.slam.system import SlamConfig
-from bench.typed import as_config
 
 
 @pytest.mark.parametrize(
@@ -40,7 +40,7 @@ def test_unknown_setting_lists_the_known_ones():
     ],
 )
 def test_bad_prune_settings_name_the_setting(kwargs, needle):
-    from bench.strategy import PruneConfig
+    from bench.slam.strategy import PruneConfig
 
     with pytest.raises(ConfigError, match=needle):
         PruneConfig(**kwargs)
@@ -49,8 +49,8 @@ def test_bad_prune_settings_name_the_setting(kwargs, needle):
 def _composed(*overrides: str):
     from hydra import compose, initialize_config_dir
 
-    from bench.cli import CONF_DIR
-    from bench.config import to_run_config
+    from bench.cli.entry import CONF_DIR
+    from bench.config.compose import to_run_config
 
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
         return to_run_config(compose(config_name="config", overrides=list(overrides)))
@@ -66,7 +66,7 @@ def test_splatam_preset_is_splatams_densification_and_nothing_else():
 
 
 def test_released_experiment_composes_the_released_schedule():
-    from bench.run import run_keys
+    from bench.run.lifecycle import run_keys
 
     cfg = _composed("+experiment=released", "dataset=kitti")
     prune = cfg.prune

@@ -10,11 +10,11 @@ import pytest
 import torch
 
 from bench import schema
-from bench.cli import compose
+from bench.cli.entry import compose
 from bench.datasets.synthetic import open_sequence
-from bench.run import run
+from bench.run.lifecycle import run
+from bench.slam.strategy import PruneContext, Strategy, load_strategy
 from bench.slam.system import REDUNDANT_WEIGHT, FrameResult, SlamConfig, System
-from bench.strategy import PruneContext, Strategy, load_strategy
 
 
 @pytest.fixture(scope="module")

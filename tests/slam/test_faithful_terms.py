@@ -11,8 +11,8 @@ from bench.datasets.synthetic import open_sequence
 from bench.errors import ConfigError
 from bench.slam.frontend import FlowPnpConfig, relative_motion, to_gray_u8
 from bench.slam.losses import dssim, ssim_map
+from bench.slam.strategy import Strategy
 from bench.slam.system import SlamConfig, System
-from bench.strategy import Strategy
 
 
 @pytest.fixture(scope="module")
@@ -115,8 +115,8 @@ def test_keyframe_rows_carry_the_fit_of_their_own_render(seq):
 
 
 def test_faithful_preset_changes_only_what_it_names():
-    from bench.cli import compose
-    from bench.validate import validate
+    from bench.cli.entry import compose
+    from bench.cli.validate import validate
 
     default = validate(compose([])).config.slam
     faithful = validate(compose(["slam=faithful"])).config.slam

@@ -12,8 +12,8 @@ from bench.datasets import open_sequence
 from bench.datasets.synthetic import open_sequence as open_synthetic
 from bench.errors import ConfigError
 from bench.slam.frontend import FlowPnpConfig, relative_motion, to_gray_u8
+from bench.slam.strategy import Strategy
 from bench.slam.system import SlamConfig, System
-from bench.strategy import Strategy
 
 REPO = Path(__file__).resolve().parents[2]
 

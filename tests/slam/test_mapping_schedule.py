@@ -6,12 +6,12 @@ from __future__ import annotations
 import pytest
 import torch
 
-from bench.cli import compose
-from bench.config import to_run_config
+from bench.cli.entry import compose
+from bench.config.compose import to_run_config
 from bench.datasets.synthetic import open_sequence
 from bench.errors import ConfigError
+from bench.slam.strategy import PruneConfig, load_strategy
 from bench.slam.system import SlamConfig, System
-from bench.strategy import PruneConfig, load_strategy
 
 
 def _system(schedule: str) -> tuple[System, object]:

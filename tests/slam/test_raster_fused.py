@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from bench.errors import ConfigError
-from bench.measure import MemoryProbe
+from bench.measure.memory import MemoryProbe
 from bench.slam.raster import rasterize, resolve_backend
 from bench.slam.se3 import se3_exp
 

@@ -6,8 +6,8 @@ import torch
 from bench.datasets.base import Frame
 from bench.datasets.synthetic import open_sequence
 from bench.errors import ConfigError, TrackingLost
+from bench.slam.strategy import Strategy
 from bench.slam.system import SlamConfig, System
-from bench.strategy import Strategy
 
 
 @pytest.fixture(scope="module")

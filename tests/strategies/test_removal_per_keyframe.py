@@ -14,8 +14,8 @@ import pytest
 import torch
 
 from bench.datasets.synthetic import open_sequence
+from bench.slam.strategy import PruneConfig, PruneContext, Strategy, load_strategy
 from bench.slam.system import FrameResult, SlamConfig, System
-from bench.strategy import PruneConfig, PruneContext, Strategy, load_strategy
 from strategies.mask import STATE_MASKED_RUN
 
 KEEP = 0.4

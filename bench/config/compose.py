@@ -5,10 +5,10 @@ Each default is written once, in a dataclass beside the code it configures (``Sl
 ``strategies/``); the run-level settings are below. The YAML files under ``bench/conf/`` pick a schema
 from the ``ConfigStore`` (``schema/dataset/NAME``, ``schema/strategy/NAME``) and only override it,
 so a mistyped key or a wrongly typed value fails at composition, not deep inside a run. Ranges and
-choices live on the same fields (``bench.typed.setting``) and are checked as each dataclass is built.
+choices live on the same fields (``bench.config.settings.setting``) and are checked as each dataclass is built.
 Dataset schemas are found through the dataset registry (``bench.datasets.schema``), not imported here.
-``bench.run`` converts the composed config once (``to_run_config``) and hands dataclasses down.
-``register_configs`` runs when ``bench.cli`` is imported, before Hydra composes anything.
+``bench.run.lifecycle`` converts the composed config once (``to_run_config``) and hands dataclasses down.
+``register_configs`` runs when ``bench.cli.entry`` is imported, before Hydra composes anything.
 """
 
 from __future__ import annotations
@@ -19,27 +19,27 @@ from typing import Any
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 
-from bench import registry
-from bench.checkpoint import CheckpointConfig
 from bench.conf import CONF_DIR, group_files
+from bench.config import plugins as registry
+from bench.config.settings import SEED_MAX, as_config, check_rules, setting
+from bench.config.settings import expected as expected_in
 from bench.datasets import GROUP as DATASET_GROUP
 from bench.datasets import schema
 from bench.errors import ConfigError, StrategyError
-from bench.export import SAVE_MAPS
+from bench.run.checkpoint import CheckpointConfig
+from bench.run.export import SAVE_MAPS
+from bench.slam.strategy import GROUP as STRATEGY_GROUP
+from bench.slam.strategy import PruneConfig
 from bench.slam.system import SlamConfig
-from bench.strategy import GROUP as STRATEGY_GROUP
-from bench.strategy import PruneConfig
-from bench.typed import SEED_MAX, as_config, check_rules, setting
-from bench.typed import expected as expected_in
 
 ALIGNMENTS = ("se3", "sim3", "none")
 PROTOCOLS = ("full", "splatam", "released")  # bench/metrics/protocol.py:PROTOCOLS
-DETERMINISM = ("strict", "fast")  # bench/determinism.py:MODES
+DETERMINISM = ("strict", "fast")  # bench/run/determinism.py:MODES
 
 
 @dataclass
 class MemoryConfig:
-    torch_live: bool = True  # track peak bytes of live torch tensors on CPU (see bench/measure.py)
+    torch_live: bool = True  # track peak bytes of live torch tensors on CPU (see bench/measure/memory.py)
 
 
 @dataclass
@@ -71,7 +71,7 @@ class EvalConfig:
 
 @dataclass
 class VizConfig:
-    """Pictures of what pruning removed (``bench/viz.py``); they cost renders inside the SLAM loop."""
+    """Pictures of what pruning removed (``bench.report.figures.pruned_run``); they cost renders in the SLAM loop."""
 
     pruning: bool = False  # pruned_kfNNN.png (+ .npz for reports) at the keyframes below
     every: int = setting(5, "int", lo=1)  # keyframes 5, 10, 15, ... (keyframe 0 has nothing to prune)
@@ -95,11 +95,11 @@ class RunConfig:
     dataset: Any = MISSING  # a dataset config dataclass (bench/datasets/), or a plugin's plain dict
     slam: SlamConfig = field(default_factory=SlamConfig)
     strategy: StrategyConfig | None = None  # None: no pruning
-    prune: PruneConfig = field(default_factory=PruneConfig)  # bench/strategy.py; +experiment=released changes it
+    prune: PruneConfig = field(default_factory=PruneConfig)  # bench/slam/strategy.py; +experiment=released changes it
     memory: MemoryConfig = field(default_factory=MemoryConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
     viz: VizConfig = field(default_factory=VizConfig)
-    # the map as a 3DGS PLY (bench/export.py): "final" writes map.ply at the end; "every_keyframe" also
+    # the map as a 3DGS PLY (bench/run/export.py): "final" writes map.ply at the end; "every_keyframe" also
     # keeps maps/kf_NNN.npz after each keyframe (python -m bench.export RUN_DIR --keyframe K)
     save_maps: str = setting("final", "str", choices=SAVE_MAPS)
     # always a string: seq=00 and seq=10 behave alike; None = the dataset's default
@@ -116,7 +116,7 @@ class RunConfig:
     warmup_frames: int = setting(1, "int", lo=0)
     progress: bool = True  # progress bar with frame i/N, Gaussian count, fps
     resume: bool = True  # skip a finished run of the same config, code and inputs; continue an interrupted one
-    checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)  # bench/checkpoint.py
+    checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)  # bench/run/checkpoint.py
     out_dir: str | None = setting(None, "str", nullable=True)  # None = Hydra's output dir
     sweep_name: str = setting("default", "str")  # multirun/<sweep_name>
 
@@ -152,8 +152,8 @@ def dataset_schemas() -> dict[str, type]:
 def compose(overrides: list[str], hydra: bool = False) -> DictConfig:
     """The run config of ``overrides`` as the CLI composes it (``./conf`` first); ``hydra``: with its ``hydra`` node.
 
-    Here rather than in ``bench.cli`` so that modules the CLI imports (``bench.study``) can compose without
-    importing the CLI back; ``bench.cli`` re-exports it and registers the schemas when imported."""
+    Here rather than in ``bench.cli.entry`` so that modules the CLI imports (``bench.sweep.study``) can compose without
+    importing the CLI back; ``bench.cli.entry`` re-exports it and registers the schemas when imported."""
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
 

@@ -1,6 +1,6 @@
 """Writing ``metrics.json``: atomically, so a reader never sees half a record.
 
-Every write of a run dir's record goes through this module: the run itself (``bench.run``) and the
+Every write of a run dir's record goes through this module: the run itself (``bench.run.lifecycle``) and the
 sweeper, which records jobs that never reach a run. A refusal (a job refused before any work: a
 bad setting, data that cannot be opened) writes its ``failed`` record only where no previous run
 left one worth keeping (``record_refusal``), so a rerun refused for a passing reason never turns a

@@ -1,10 +1,10 @@
 """``run(cfg) -> RunResult``: one SLAM run wired end to end, writing its run directory.
 
-The composed Hydra config is validated and converted once (``bench.validate.validate``, which also
+The composed Hydra config is validated and converted once (``bench.cli.validate.validate``, which also
 builds the strategy and a given LPIPS model; the CLI's own check hands its result over); everything
 below receives dataclasses. A run reads as its data flows: ``build`` makes the SLAM system around
 the opened sequence, ``drive`` feeds it the frames and writes one ``keyframes.csv`` row per keyframe
-window, ``finish`` refines, summarises memory, evaluates and plots. Its keys come from ``bench.keys``.
+window, ``finish`` refines, summarises memory, evaluates and plots. Its keys come from ``bench.config.identity``.
 
 Everything a run learns is written as it goes: ``keyframes.csv`` rows are flushed per keyframe
 window and ``metrics.json`` is replaced atomically, so an interrupted or lost run keeps what
@@ -31,28 +31,29 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from bench import checkpoint as ckpt
-from bench import provenance, schema
+from bench import schema
+from bench.cli.validate import Built, validate
 from bench.conf import config_files
-from bench.config import RunConfig
+from bench.config.compose import RunConfig
+from bench.config.identity import dataset_name, run_keys
+from bench.config.settings import plain
 from bench.datasets import Sequence, open_sequence
-from bench.determinism import repeatable
 from bench.errors import BenchError, ConfigError, TrackingLost
-from bench.export import MAP_FILE, save_snapshot, write_map
-from bench.keys import dataset_name, run_keys
-from bench.measure import MemoryProbe, PhaseTimer
+from bench.measure.memory import MemoryProbe, PhaseTimer
+from bench.measure.progress import Phase
 from bench.metrics.image import MS_SSIM_MIN_PX
 from bench.metrics.trajectory import TumAppender
-from bench.progress import Phase
-from bench.record import is_leftover, owner, read_record, record_refusal, write_json, write_text
-from bench.resume import redo_reason
-from bench.signals import Interrupted, Preemption, deferred_signals, held_preemption, raise_on_signals
+from bench.report.figures.pruned_run import PruneViz
+from bench.run import checkpoint as ckpt
+from bench.run import provenance
+from bench.run.determinism import repeatable
+from bench.run.export import MAP_FILE, save_snapshot, write_map
+from bench.run.record import is_leftover, owner, read_record, record_refusal, write_json, write_text
+from bench.run.resume import redo_reason
+from bench.run.signals import Interrupted, Preemption, deferred_signals, held_preemption, raise_on_signals
 from bench.slam.se3 import inverse
+from bench.slam.strategy import CheckedStrategy, Strategy
 from bench.slam.system import FrameResult, System
-from bench.strategy import CheckedStrategy, Strategy
-from bench.typed import plain
-from bench.validate import Built, validate
-from bench.viz import PruneViz
 
 log = logging.getLogger(__name__)
 
@@ -106,9 +107,9 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: B
 
     Order matters: the config is validated and the data opened before anything is written, so a
     refused run leaves no half-made dir; a stored run is skipped only when config, code version
-    and input files all match (``bench.resume``); once running, SIGINT/SIGTERM end the run as
+    and input files all match (``bench.run.resume``); once running, SIGINT/SIGTERM end the run as
     ``interrupted`` with what the frames done allow (then ``Interrupted`` is re-raised).
-    ``built``: what ``bench.validate.validate`` made of this same config already (the CLI's check
+    ``built``: what ``bench.cli.validate.validate`` made of this same config already (the CLI's check
     before Hydra starts), used as it is; a config that differs from it is validated again.
     """
     if isinstance(cfg, RunConfig):
@@ -279,7 +280,7 @@ class Parts:
     probe: MemoryProbe
     viz: PruneViz | None = None  # viz.pruning
     lpips: Any = None  # what validate loaded from eval.lpips_weights; None: loaded at evaluation if at all
-    keys: dict[str, Any] = field(default_factory=dict)  # the run block of metrics.json (bench.keys)
+    keys: dict[str, Any] = field(default_factory=dict)  # the run block of metrics.json (bench.config.identity)
 
 
 def open_seq(cfg: RunConfig) -> Sequence:
@@ -365,7 +366,7 @@ def _inner(strategy: Strategy) -> Strategy:
 
 def write_checkpoint(cfg: RunConfig, parts: Parts, drive: Drive, out: Path, record: dict[str, Any],
                      between: dict[str, Any]) -> None:
-    """The loop's whole state after the frames done so far (see ``bench.checkpoint``); its cost goes into
+    """The loop's whole state after the frames done so far (see ``bench.run.checkpoint``); its cost goes into
     metrics.json's ``checkpoint`` block, outside the SLAM time and the metrics a resume must repeat."""
     stats = record["checkpoint"]
     n_done = len(drive.timestamps_s)
@@ -638,7 +639,7 @@ def finish(cfg: RunConfig, parts: Parts, drive: Drive, out: Path, device: torch.
     t_eval = time.perf_counter()
     metrics.update(_evaluate(cfg, out, parts, est_c2w, drive, device, images=not partial))
     metrics["eval_s"] = round(time.perf_counter() - t_eval, 3)  # ATE, rendering, PSNR/SSIM/LPIPS
-    from bench.plots import memory_timeline
+    from bench.report.figures.run_memory import memory_timeline
 
     memory_timeline(out / "memory.png", drive.windows, title=f"{parts.keys['strategy']} on {parts.seq.name}")
     if not partial:
@@ -650,7 +651,7 @@ def finish(cfg: RunConfig, parts: Parts, drive: Drive, out: Path, device: torch.
 
 
 def describe(keys: dict[str, Any]) -> str:
-    """A run in a figure title: strategy, keep ratio and preset, from its keys (``bench.keys.run_keys``)."""
+    """A run in a figure title: strategy, keep ratio and preset, from its keys (``bench.config.identity.run_keys``)."""
     from bench.report.names import method_name
 
     ratio = "" if keys["keep_ratio"] is None else f", keep {keys['keep_ratio']:g}"

@@ -15,7 +15,7 @@ import torch
 PACKAGES = (
     "pocketbench", "torch", "numpy", "evo", "torchmetrics", "hydra-core", "opencv-python-headless", "numba", "llvmlite",
 )
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _git(*args: str) -> str | None:

@@ -1,7 +1,7 @@
 """What a person reads when a run or a sweep ends: an aligned run table, a sweep comparison.
 
 A run prints a short two-column table (headline metrics with units, wall time, run dir). A sweep
-(``--multirun``) plans its jobs once (``bench.sweep.planned``) and ``SweepSummary`` (a Hydra callback
+(``--multirun``) plans its jobs once (``bench.sweep.plan.planned``) and ``SweepSummary`` (a Hydra callback
 in the main process) writes that plan to ``<sweep dir>/.pocketbench_jobs.jsonl``. Each job, wherever
 it runs (a launcher's worker, a cluster node, the sweeper for a job that cannot be composed), appends
 its outcome there and prints ``sweep: k/n runs done, ETA ...``. When the sweep is over the callback
@@ -22,7 +22,7 @@ from typing import Any
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
-from bench.progress import format_duration
+from bench.measure.progress import format_duration
 
 JOBS_FILE = ".pocketbench_jobs.jsonl"
 SUMMARY_FILE = "summary.md"
@@ -192,7 +192,7 @@ class SweepSummary(Callback):
     and writes the comparison table when it ends. Runs in the main process only."""
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
-        from bench.sweep import header, planned
+        from bench.sweep.plan import header, planned
 
         path = Path(config.hydra.sweep.dir).resolve() / JOBS_FILE
         path.parent.mkdir(parents=True, exist_ok=True)

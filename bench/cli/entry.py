@@ -1,11 +1,11 @@
-"""The thin CLI over ``bench.run`` (``pocketbench`` and ``python -m bench``): Hydra composes the
+"""The thin CLI over ``bench.run.lifecycle`` (``pocketbench`` and ``python -m bench``): Hydra composes the
 config, known errors print one line.
 
 The configs ship inside the package (``bench/conf``) and Hydra reads them as ``pkg://bench.conf``,
 so a wheel install finds them as an editable one does.
 
 Before Hydra takes over, ``precheck`` composes a single run's config itself and validates it
-(``bench.validate``), so a bad setting ends in one ``error:`` line and exit 2 before Hydra creates
+(``bench.cli.validate``), so a bad setting ends in one ``error:`` line and exit 2 before Hydra creates
 a run dir; Hydra's own answers (a multi-line listing for an unknown option, a four-line message for
 an unknown key) are turned into that line too. In a sweep each job is checked where it runs and a
 bad one is recorded ``failed`` (``hydra_plugins/pocketbench_sweeper``) while the sweep goes on.
@@ -29,20 +29,20 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from bench.conf import CONF_DIR, group_files
-from bench.config import compose, expected, register_configs
+from bench.config.compose import compose, expected, register_configs
+from bench.config.plugins import unknown_name_message
+from bench.config.settings import describe_error
 from bench.errors import BenchError, ConfigError, StrategyError
-from bench.registry import unknown_name_message
-from bench.summary import run_table
-from bench.typed import describe_error
+from bench.sweep.summary import run_table
 
 if TYPE_CHECKING:
-    from bench.validate import Built
+    from bench.cli.validate import Built
 
 CONF_PKG = "bench.conf"
 # Hydra finds plugins (our sweeper) only in the hydra_plugins namespace package. An editable
 # install made before that folder existed does not map it, so the checkout root joins the path
 # (last, so installed packages win).
-_ROOT = Path(__file__).resolve().parents[1]
+_ROOT = Path(__file__).resolve().parents[2]
 if (_ROOT / "hydra_plugins").is_dir() and str(_ROOT) not in sys.path:
     sys.path.append(str(_ROOT))
 log = logging.getLogger("bench")
@@ -58,7 +58,7 @@ warnings.filterwarnings("ignore", message=r"(?s).*is validated against ConfigSto
 
 def strategy_names() -> list[str]:
     """Strategies a user can name: built-in configs plus installed entry points."""
-    from bench.strategy import available
+    from bench.slam.strategy import available
 
     return sorted(group_choices("strategy") | set(available()))
 
@@ -70,7 +70,7 @@ def group_choices(group: str) -> set[str]:
 
 def help_groups() -> str:
     """The ``--help`` listing: each user-facing group with its choices, installed plugins included."""
-    from bench.strategy import available
+    from bench.slam.strategy import available
 
     defaults = {"dataset": "synthetic", "slam": "default", "hydra/launcher": "basic"}
     lines = []
@@ -238,7 +238,7 @@ def _known_keys(parent: str, overrides: list[str]) -> str:
 def precheck(argv: list[str]) -> Built | None:
     """Everything that can be refused before Hydra runs anything: one ``BenchError`` line.
 
-    Returns the run a single-run command line builds (``bench.validate.Built``), for ``bench.run``
+    Returns the run a single-run command line builds (``bench.cli.validate.Built``), for ``bench.run.lifecycle``
     to use rather than build again; None for a sweep (each job is validated where it runs).
     """
     parts = split_args(argv)
@@ -261,9 +261,9 @@ def precheck(argv: list[str]) -> Built | None:
         raise ConfigError(composition_error(exc, job)) from None
     if multirun:
         shared_refusal(job, swept, hyd)
-        return None  # each job is validated where it runs (our sweeper, bench.run) and recorded if bad
-    from bench.run import resolve_device
-    from bench.validate import validate
+        return None  # each job is validated where it runs (our sweeper, bench.run.lifecycle) and recorded if bad
+    from bench.cli.validate import validate
+    from bench.run.lifecycle import resolve_device
 
     built = validate(cfg)
     resolve_device(built.config.device)  # a single run runs here: this machine must have the device
@@ -274,7 +274,7 @@ def check_study(job: list[str]) -> None:
     """``+study=NAME`` names a study file that holds a study: one line if not (Hydra's answers run to pages)."""
     name = _value(job, "study")
     if name is not None:
-        from bench.study import load
+        from bench.sweep.study import load
 
         load(name)  # the file, its YAML, its sweeps and their overrides
 
@@ -288,8 +288,8 @@ def shared_refusal(fixed: list[str], job: list[str], hyd: list[str]) -> None:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from bench.sweep import planned
-    from bench.validate import validate
+    from bench.cli.validate import validate
+    from bench.sweep.plan import planned
 
     def refusal(overrides: list[str]) -> str | None:
         task = [o for o in overrides if not o.lstrip("+~").startswith("hydra")]
@@ -312,8 +312,8 @@ def shared_refusal(fixed: list[str], job: list[str], hyd: list[str]) -> None:
 
 @hydra.main(version_base="1.3", config_path=f"pkg://{CONF_PKG}", config_name="config")
 def _hydra_main(cfg: DictConfig) -> None:
-    from bench.run import run
-    from bench.signals import Interrupted
+    from bench.run.lifecycle import run
+    from bench.run.signals import Interrupted
 
     hc = HydraConfig.get()
     multirun = hc.mode == RunMode.MULTIRUN
@@ -350,8 +350,8 @@ def _hydra_main(cfg: DictConfig) -> None:
 
 def _record(hc, status: str, out_dir: object, metrics: dict, wall_s: float | None) -> None:
     """One finished sweep run into the sweep's job record, and the sweep progress line."""
-    from bench.summary import record_job
-    from bench.sweep import job_name
+    from bench.sweep.plan import job_name
+    from bench.sweep.summary import record_job
 
     job = {"num": hc.job.num, "name": job_name(list(hc.overrides.task)), "status": status, "dir": str(out_dir),
            "metrics": dict(metrics), "wall_s": wall_s}  # fmt: skip
@@ -361,7 +361,7 @@ def _record(hc, status: str, out_dir: object, metrics: dict, wall_s: float | Non
 # the schemas bench/conf/*.yaml build on, and a strategy/NAME entry for each plugin that ships no YAML,
 # before Hydra composes anything; here, so launcher workers (joblib, submitit) that import this module see them
 register_configs()
-# what precheck built for the single run Hydra is about to start (bench.run checks it is the same config)
+# what precheck built for the single run Hydra is about to start (bench.run.lifecycle checks it is the same config)
 _PRECHECKED: list[Built] = []
 
 

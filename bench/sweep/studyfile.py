@@ -1,7 +1,7 @@
-"""A study file as data: its sweeps, their runs' overrides, and its report options (``bench.study`` loads it).
+"""A study file as data: its sweeps, their runs' overrides, and its report options (``bench.sweep.study`` loads it).
 
-Kept apart from ``bench.study`` because the sweeper (``bench.sweep``) expands a study's sweeps while
-``bench.study`` asks the sweeper for each run's dir: neither imports the other through this module.
+Kept apart from ``bench.sweep.study`` because the sweeper (``bench.sweep.plan``) expands a study's sweeps while
+``bench.sweep.study`` asks the sweeper for each run's dir: neither imports the other through this module.
 """
 
 from __future__ import annotations

@@ -2,9 +2,9 @@
 
 Why first: a value checked only where it is used (``eval.ate_align`` after the SLAM loop) lets a bad
 setting cost a whole run, or become a result. The rules themselves live on the typed config classes
-(``bench.typed.setting`` fields and ``__post_init__`` checks), so this module only composes them:
+(``bench.config.settings.setting`` fields and ``__post_init__`` checks), so this module only composes them:
 the keys no schema has, the one conversion to ``RunConfig`` (which runs every rule), the strategy
-and a given LPIPS checkpoint. It returns what it built, for ``bench.run.run`` to use as it is.
+and a given LPIPS checkpoint. It returns what it built, for ``bench.run.lifecycle.run`` to use as it is.
 """
 
 from __future__ import annotations
@@ -13,11 +13,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from bench.checkpoint import CheckpointConfig
-from bench.config import EvalConfig, MemoryConfig, RunConfig, VizConfig, to_run_config
+from bench.config.compose import EvalConfig, MemoryConfig, RunConfig, VizConfig, to_run_config
+from bench.config.settings import check_rules, plain, unknown_keys
 from bench.errors import BenchError, ConfigError
-from bench.strategy import CheckedStrategy, PruneConfig, load_strategy, strategy_class, unknown_params
-from bench.typed import check_rules, plain, unknown_keys
+from bench.run.checkpoint import CheckpointConfig
+from bench.slam.strategy import CheckedStrategy, PruneConfig, load_strategy, strategy_class, unknown_params
 
 
 @dataclass

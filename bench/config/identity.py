@@ -2,7 +2,7 @@
 
 Strategy, dataset, canonical sequence, seed, keep ratio and preset name a run in a report; the
 config hash and the resume key (code version, input files) decide whether a stored run is the same
-run (``bench.resume``). A run computes its keys once (``bench.run``); a job that never composed or
+run (``bench.run.resume``). A run computes its keys once (``bench.run.lifecycle``); a job that never composed or
 validated (the sweeper, a refused config) gets what of them its settings as given allow, from the
 same function.
 """
@@ -14,11 +14,11 @@ from typing import Any
 
 from omegaconf import DictConfig
 
-from bench import provenance
-from bench.config import RunConfig, to_run_config
+from bench.config.compose import RunConfig, to_run_config
 from bench.datasets import Sequence, canonical_seq
 from bench.errors import BenchError
-from bench.resume import input_fingerprint, resume_key
+from bench.run import provenance
+from bench.run.resume import input_fingerprint, resume_key
 
 # keys that change how a run is shown or stored (or checkpointed), not what it computes
 NOT_HASHED = ("progress", "out_dir", "resume", "checkpoint")

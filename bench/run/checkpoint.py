@@ -31,9 +31,9 @@ from typing import Any
 import numpy as np
 import torch
 
+from bench.config.settings import check_rules, setting
 from bench.errors import BenchError
-from bench.resume import redo_reason
-from bench.typed import check_rules, setting
+from bench.run.resume import redo_reason
 
 log = logging.getLogger(__name__)
 

@@ -1,7 +1,7 @@
 """A sweep's jobs, planned once: their overrides, their run dirs, their names in the summary.
 
 Why one place: the sweeper launches the jobs, the summary callback lists them (every planned job,
-run or not), ``bench.study`` lists a study's run dirs and the CLI refuses a sweep whose every job
+run or not), ``bench.sweep.study`` lists a study's run dirs and the CLI refuses a sweep whose every job
 is bad. All four must agree on what the jobs are and where each writes.
 
 Hydra names a job's dir by its overrides less ``hydra.job.config.override_dirname.exclude_keys``
@@ -40,8 +40,8 @@ def expand(config: DictConfig, lines: Sequence[str]) -> list[list[str]]:
     parsed = OverridesParser.create().parse_overrides(list(lines))
     study = OmegaConf.select(config, "hydra.sweeper.study")
     if study:
-        from bench.studyfile import expand as expand_study
-        from bench.studyfile import parse
+        from bench.sweep.studyfile import expand as expand_study
+        from bench.sweep.studyfile import parse
 
         name = next((str(o.value()) for o in parsed if o.key_or_group == "study"), "?")
         given = [o.input_line for o in parsed if o.key_or_group != "study"]

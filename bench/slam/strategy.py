@@ -17,11 +17,11 @@ from typing import Any, ClassVar
 
 import torch
 
-from bench import registry
+from bench.config import plugins as registry
+from bench.config.settings import check_rules, check_types, setting
 from bench.errors import ConfigError, StrategyError
 from bench.slam.gaussians import GaussianMap, ParamSpec
 from bench.slam.raster import RasterOutput
-from bench.typed import check_rules, check_types, setting
 
 GROUP = "pocketbench.strategies"
 
@@ -282,7 +282,7 @@ def strategy_class(name: str) -> type[Strategy]:
     cls = registry.load(GROUP, "strategy", name, StrategyError)
     if not (isinstance(cls, type) and issubclass(cls, Strategy) and dataclasses.is_dataclass(cls)):
         raise StrategyError(
-            f"strategy '{name}': expected a @dataclass subclass of bench.strategy.Strategy, found {cls!r}"
+            f"strategy '{name}': expected a @dataclass subclass of bench.slam.strategy.Strategy, found {cls!r}"
         )
     return cls
 

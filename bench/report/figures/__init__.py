@@ -1,0 +1,1 @@
+"""Every figure pocketbench draws, one module per figure family."""
