@@ -13,7 +13,7 @@ from pathlib import Path
 
 from bench.errors import ArgumentParser, BenchError, ReportError
 from bench.report.build import load_labels, make_report, redraw
-from bench.report.plots import DPI, check_figure_options
+from bench.report.figures.output import DPI, check_figure_options
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:

@@ -3,7 +3,7 @@ whether each strategy stays within seed noise of the unpruned baseline as the dr
 
 Read from runs made with ``eval.at_frames`` (``milestones.csv``: the run scored as if the drive ended
 at each count) and from ``keyframes.csv`` with the ground-truth distance at each keyframe
-(``bench.report.plots.distance_driven``). The paper's claim is about whole sequences (KITTI 06:
+(``bench.report.figures.runs.distance_driven``). The paper's claim is about whole sequences (KITTI 06:
 1,101 frames), so growth slopes are extrapolated to the lengths in ``sequence_lengths.csv`` and set
 beside the paper's memory figures; an extrapolation is a straight line through what was measured,
 and ``scale.md`` says so.

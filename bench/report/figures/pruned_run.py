@@ -4,7 +4,7 @@ At keyframes ``every``, ``2 every``, ... the prune's inputs and outputs are kept
 ``pruned_kfNNN.npz`` (the keyframe image, the render before and after the prune, the pruned
 Gaussians' projected centres and their coverage C_i), and ``draw_all`` turns each into
 ``pruned_kfNNN.png`` once the run is over. The report reads the npz files to put strategies side
-by side on one keyframe (``bench.report.plots.plot_pruned``). The extra render per shown keyframe
+by side on one keyframe (``bench.report.figures.pruned.plot_pruned``). The extra render per shown keyframe
 runs inside the SLAM loop, so a run with viz on is not one to take FPS or peak memory from.
 """
 
@@ -29,7 +29,7 @@ def _u8(image: torch.Tensor) -> np.ndarray:
     return (image.detach().clamp(0, 1) * 255.0 + 0.5).to(torch.uint8).cpu().numpy()
 
 
-def psnr_db(a: np.ndarray, b: np.ndarray) -> float:
+def caption_psnr_db(a: np.ndarray, b: np.ndarray) -> float:
     """PSNR of two uint8 images, for the figure's captions (the run's metrics use torchmetrics)."""
     mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)) / 255.0**2
     return math.inf if mse == 0 else -10.0 * math.log10(mse)
@@ -99,7 +99,7 @@ def draw(npz: Path, png: Path) -> Path:
     h, w = r["image"].shape[:2]
     fig = Figure(figsize=(10.0, 2 * 4.6 * h / w + 0.8), layout="constrained")
     axes = fig.subplots(2, 2)
-    before_db, after_db = psnr_db(r["before"], r["image"]), psnr_db(r["after"], r["image"])
+    before_db, after_db = caption_psnr_db(r["before"], r["image"]), caption_psnr_db(r["after"], r["image"])
     panels = (("keyframe image", r["image"]), (f"render before the prune ({before_db:.2f} dB)", r["before"]),
               (f"render after the prune ({after_db:.2f} dB)", r["after"]))  # fmt: skip
     for ax, (title, image) in zip(axes.ravel(), panels, strict=False):

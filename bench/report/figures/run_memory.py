@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-# the report's probe names (bench/report/plots.py:PROBE_NAMES), with "peak" said where it is one
+# the report's probe names (bench/report/figures/per_keyframe.py:PROBE_NAMES), with "peak" said where it is one
 SERIES: tuple[tuple[str, str, str], ...] = (
     ("torch_live_peak_mib", "-", "live torch tensors, peak"),
     ("cuda_alloc_peak_mib", "--", "CUDA allocator, peak"),
