@@ -28,6 +28,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from bench import schema
 from bench.cli.validate import ValidatedRun, validate
+from bench.conf import config_files
 from bench.config.compose import RunConfig
 from bench.config.identity import run_keys
 from bench.config.settings import plain
@@ -192,6 +193,9 @@ def _refused(out: Path, error: str, keys: dict[str, Any], config_yaml: str | Non
 
 def _config_files() -> dict[str, str] | None:
     """The file each group choice came from (a user's ./conf or the package), when Hydra composed the run."""
+    from hydra.core.hydra_config import HydraConfig
+
+    return config_files(HydraConfig.get().runtime.choices) if HydraConfig.initialized() else None
 
 
 def _previous(out: Path) -> dict[str, Any] | None:
