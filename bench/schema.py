@@ -1,6 +1,6 @@
 """The run directory's format: every field of ``metrics.json`` and ``keyframes.csv``, with its unit.
 
-The writer (``bench.run``), the report reader (``bench.report``) and the docs' run-directory tables
+The writer (``bench.run.lifecycle``), the report reader (``bench.report``) and the docs' run-directory tables
 (``docs/run-directory.md``) all follow this module; ``tests/test_schema.py`` checks that page against
 ``markdown()``. Regenerate its block from what ``python -m bench.schema`` prints.
 """
@@ -20,7 +20,7 @@ STATUSES: tuple[str, ...] = ("ok", "lost", "failed", "interrupted", "running")
 FINISHED: tuple[str, ...] = ("ok", "lost")  # a rerun of the same config skips these
 UNFINISHED: tuple[str, ...] = ("running", "interrupted")  # left out of tables and plots
 # where a redo of a finished run works (its record, checkpoints and files) until it finishes too;
-# only then do its files replace the finished run's (bench.record.promote)
+# only then do its files replace the finished run's (bench.run.record.promote)
 REDO_DIR = ".redo"
 
 
@@ -62,7 +62,7 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
     Field("track_s", "s", "tracking time of the keyframe's frame"),
     Field("map_s", "s", "mapping time"),
     Field("prune_s", "s", "pruning time"),
-    # the headline peak split into parts (bench/run.py:memory_parts); mem_state + mem_keyframes + mem_other +
+    # the headline peak split into parts (bench/run/loop.py:memory_parts); mem_state + mem_keyframes + mem_other +
     # mem_work = the peak column (cuda_alloc_peak_mib on CUDA, torch_live_peak_mib on CPU), to rounding
     Field("mem_state_mib", "MiB", "Gaussian state at its largest in the window (after densification, during "
           "mapping): params, a gradient per param, Adam moments, strategy state; exact bytes"),
@@ -85,7 +85,7 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
     Field("n_reseeded_holes", "", "Gaussians this keyframe seeded in pixels the prunes since the previous "
           "keyframe opened (their surface points, from the observed depth, projected into this view)"),
     Field("diag_s", "s", "time spent on the pruning diagnostics above (included in `prune_s`)"),
-    # how well mapping fitted the keyframe it just mapped (bench/slam/system.py:_fit_diagnostics)
+    # how well mapping fitted the keyframe it just mapped (bench/slam/prune_diagnostics.py:_fit_diagnostics)
     Field("kf_psnr_db", "dB", "the keyframe's own render right after its mapping, before pruning: PSNR, whole image"),
     Field("kf_psnr_depth_db", "dB", "... PSNR over the pixels with observed depth (those a map can seed)"),
     Field("kf_psnr_nodepth_db", "dB", "... PSNR over the pixels without depth (sky, no disparity); null if none"),

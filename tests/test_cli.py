@@ -12,9 +12,9 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig
 
-from bench.cli import CONF_DIR, check_overrides
+from bench.cli.entry import CONF_DIR, check_overrides
 from bench.errors import StrategyError
-from bench.run import run
+from bench.run.lifecycle import run
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -53,8 +53,8 @@ def test_final_refinement_is_specialised_per_dataset(overrides, refine_iters, tr
 
 @pytest.mark.parametrize("seq", ["00", "05", "10"])
 def test_seq_is_kept_as_written(seq):
-    from bench.config import to_run_config
-    from bench.run import run_keys
+    from bench.config.compose import to_run_config
+    from bench.config.identity import run_keys
 
     cfg = to_run_config(compose_cfg("dataset=kitti", f"seq={seq}"))
     assert run_keys(cfg)["seq"].zfill(2) == seq
@@ -154,16 +154,16 @@ def test_end_to_end_tiny_run_is_accurate(tmp_path):
 
 @pytest.mark.slow
 def test_a_single_run_is_validated_and_built_once(tmp_path, monkeypatch):
-    """The CLI's check before Hydra starts builds the run (config, strategy); ``bench.run`` uses that."""
+    """The CLI's check before Hydra starts builds the run (config, strategy); ``bench.run.lifecycle`` uses that."""
     import contextlib
     import io
 
-    import bench.validate
-    from bench import cli
+    import bench.cli.validate
+    from bench.cli import entry as cli
 
     conversions = []
-    convert = bench.validate.to_run_config
-    monkeypatch.setattr(bench.validate, "to_run_config", lambda cfg: conversions.append(1) or convert(cfg))
+    convert = bench.cli.validate.to_run_config
+    monkeypatch.setattr(bench.cli.validate, "to_run_config", lambda cfg: conversions.append(1) or convert(cfg))
     monkeypatch.setattr(sys, "argv", ["bench", "+experiment=tiny", "+strategy=pocket", "dataset.n_frames=3",
                                       "slam.mapping_iters=2", "slam.tracking_iters=2", "slam.refine_iters=0",
                                       "eval.lpips=false", "progress=false", f"hydra.run.dir={tmp_path}"])

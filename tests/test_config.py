@@ -9,13 +9,13 @@ import pytest
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from bench.cli import CONF_DIR
-from bench.config import RunConfig, dataset_schemas, to_run_config
+from bench.cli.entry import CONF_DIR
+from bench.config.compose import RunConfig, dataset_schemas, to_run_config
+from bench.config.settings import as_config
 from bench.datasets.kitti import KittiConfig
 from bench.errors import ConfigError
-from bench.slam.system import SlamConfig
-from bench.strategy import Strategy
-from bench.typed import as_config
+from bench.slam.config import SlamConfig
+from bench.slam.strategy import Strategy
 
 
 def compose_cfg(*overrides: str):

@@ -10,9 +10,9 @@ import torch
 from hydra import compose, initialize_config_dir
 from plyfile import PlyData
 
-from bench.cli import CONF_DIR  # importing bench.cli registers the config schemas
-from bench.export import C0, PROPERTIES, export_keyframe, main, map_arrays, read_ply, save_snapshot, write_map
-from bench.run import run
+from bench.cli.entry import CONF_DIR  # importing bench.cli.entry registers the config schemas
+from bench.run.export import C0, PROPERTIES, export_keyframe, main, map_arrays, read_ply, save_snapshot, write_map
+from bench.run.lifecycle import run
 from bench.slam.gaussians import GaussianMap
 
 TINY = ["dataset.width=48", "dataset.height=32", "dataset.n_frames=7", "slam.tracking_iters=4",

@@ -59,7 +59,7 @@ def test_a_directory_in_place_of_the_checkpoint_is_refused_before_work(tmp_path:
 def test_a_failed_checkpoint_write_leaves_the_old_one_and_no_tmp(tmp_path: Path, monkeypatch, fault) -> None:
     import torch
 
-    from bench import checkpoint as ckpt
+    from bench.run import checkpoint as ckpt
 
     ckpt.save(tmp_path, {"frame": 1})
     before = (tmp_path / "checkpoint.pt").read_bytes()
@@ -89,7 +89,7 @@ def test_a_list_that_names_a_missing_image_is_refused_before_any_frame(tmp_path:
 
 # --------------------------------------------------------------------------- export
 def _snapshot(run_dir: Path) -> Path:
-    from bench.export import PARAMS, SNAPSHOT_DIR
+    from bench.run.export import PARAMS, SNAPSHOT_DIR
 
     shapes = {"means": 3, "log_scales": 3, "quats": 4, "opacity_logits": 0, "colors": 3}
     arrays = {k: np.ones((50, shapes[k]) if shapes[k] else 50, np.float32) for k in PARAMS}
@@ -100,7 +100,7 @@ def _snapshot(run_dir: Path) -> Path:
 
 
 def test_export_of_a_truncated_snapshot_is_one_line(tmp_path: Path, capsys) -> None:
-    from bench.export import main
+    from bench.run.export import main
 
     path = _snapshot(tmp_path)
     path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
@@ -110,7 +110,7 @@ def test_export_of_a_truncated_snapshot_is_one_line(tmp_path: Path, capsys) -> N
 
 
 def test_export_out_naming_a_directory_is_one_line(tmp_path: Path, capsys) -> None:
-    from bench.export import main
+    from bench.run.export import main
 
     _snapshot(tmp_path)
     (tmp_path / "out").mkdir()
@@ -140,7 +140,7 @@ STUDY_FILES = {
 
 @pytest.mark.parametrize("name", sorted(STUDY_FILES))
 def test_a_broken_study_file_is_one_line(name: str, tmp_path: Path, monkeypatch, capsys) -> None:
-    from bench.study import main
+    from bench.sweep.study import main
 
     (tmp_path / "conf" / "study").mkdir(parents=True)
     text, says = STUDY_FILES[name]

@@ -25,34 +25,37 @@ REPO = Path(__file__).resolve().parents[1]
 PROBE = r"""
 import json, resource, sys
 import numba
-from bench import cli
-import bench.run as R
+from bench.cli import entry as cli
+import bench.run.lifecycle as R
+import bench.run.loop as loop
 import bench.slam.raster_fused as rf
 from bench.slam.system import System
 
 def loaded():
-    return {k: len(v.overloads) for k, v in vars(rf).items() if isinstance(v, numba.core.registry.CPUDispatcher)}
+    kernels = {f"{m.__name__}.{k}": v for m in list(sys.modules.values()) if m.__name__.startswith(rf.__name__ + ".")
+               for k, v in vars(m).items() if isinstance(v, numba.core.registry.CPUDispatcher)}
+    return {k: len(v.overloads) for k, v in kernels.items()}
 
 def cpu_s():
     u = resource.getrusage(resource.RUSAGE_SELF)
     return u.ru_utime + u.ru_stime
 
 jobs = []
-process = System.process
+process = System.step
 def timed(self, frame):
     t0 = cpu_s()
     out = process(self, frame)
     if frame.index > 0:  # after the warm-up frame: what FPS is over
         jobs[-1]["cpu_s"] += cpu_s() - t0
     return out
-System.process = timed
-drive = R.drive_frames
+System.step = timed
+drive = loop.run_frames
 def watched(*args, **kwargs):
     jobs[-1]["before"] = loaded()
     result = drive(*args, **kwargs)
     jobs[-1]["after"] = loaded()
     return result
-R.drive_frames = watched
+loop.run_frames = watched
 for k in range(2):
     jobs.append({"cpu_s": 0.0})
     cfg = cli.compose(["+experiment=tiny", "+strategy=pocket", "dataset.n_frames=5", "slam.refine_iters=0",
@@ -80,7 +83,7 @@ def test_the_first_job_of_a_process_runs_like_the_next(tmp_path: Path) -> None:
 
 def test_a_single_run_does_not_spin_idle_openmp_workers() -> None:
     """OMP_WAIT_POLICY=PASSIVE before torch loads its OpenMP runtime, unless the user set one."""
-    code = "import os, bench.cli, torch; print(os.environ.get('OMP_WAIT_POLICY'))"
+    code = "import os, bench.cli.entry, torch; print(os.environ.get('OMP_WAIT_POLICY'))"
     env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
     env["PYTHONPATH"] = f"{REPO}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)

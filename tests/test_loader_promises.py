@@ -16,10 +16,10 @@ from pathlib import Path
 
 import pytest
 
-from bench import cli
-from bench.config import to_run_config
+from bench.cli import entry as cli
+from bench.config.compose import to_run_config
 from bench.errors import DatasetError
-from bench.run import open_seq
+from bench.run.setup import open_seq
 from tests.test_bad_input import _lines, _tum_copy
 
 

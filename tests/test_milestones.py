@@ -13,7 +13,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from bench.config import EvalConfig
+from bench.config.compose import EvalConfig
 from bench.errors import ConfigError
 from tests.test_checkpoint import TINY, bench, checkpoint_frames, keyframe_rows
 

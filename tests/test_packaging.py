@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from bench.cli import help_groups
+from bench.cli.help import help_groups
 from bench.conf import CONF_DIR
 from tests.conftest import make_venv
 
@@ -36,7 +36,7 @@ def test_help_lists_choices_and_examples_not_internal_groups(tmp_path):
 
 
 def test_help_groups_include_installed_plugins(monkeypatch):
-    monkeypatch.setattr("bench.strategy.available", lambda: ["pocket", "zz_plugin"])
+    monkeypatch.setattr("bench.slam.strategy.available", lambda: ["pocket", "zz_plugin"])
     assert "zz_plugin" in next(ln for ln in help_groups().splitlines() if "strategy:" in ln)
 
 
@@ -56,7 +56,7 @@ def wheel_venv(tmp_path_factory) -> Path:
     assert build.returncode == 0, build.stderr[-2000:]
     make_venv(root / "venv")
     wheel = next((root / "dist").glob("pocketbench-*.whl"))
-    with zipfile.ZipFile(wheel) as zf:  # the packages only: no benchmarks/, tests/ or reports/
+    with zipfile.ZipFile(wheel) as zf:  # the packages only: no profiling/, tests/ or reports/
         top = {name.split("/", 1)[0] for name in zf.namelist()}
     assert top - {"bench", "strategies", "hydra_plugins"} == {f"pocketbench-{wheel.name.split('-')[1]}.dist-info"}, top
     install = subprocess.run([str(root / "venv" / "bin" / "python"), "-m", "pip", "install", "-q", "--no-deps",

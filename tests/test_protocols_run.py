@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 from hydra import compose, initialize_config_dir
 
-from bench.cli import CONF_DIR  # importing the CLI registers the schemas the configs build on
-from bench.config import to_run_config
-from bench.run import run
+from bench.cli.entry import CONF_DIR  # importing the CLI registers the schemas the configs build on
+from bench.config.compose import to_run_config
+from bench.run.lifecycle import run
 from tests.test_bad_input import run_cli, tiny
 
 SMALL = ["+experiment=tiny", "dataset.n_frames=4", "slam.tracking_iters=4", "slam.mapping_iters=4",
@@ -74,7 +74,7 @@ def test_bad_protocol_settings_are_one_line_exit_2(args: list[str], says: str, t
 
 
 def test_run_table_names_the_protocol_and_ms_ssim() -> None:
-    from bench.summary import run_table
+    from bench.sweep.summary import run_table
 
     text = run_table("ok", Path("/runs/a"), {"eval_protocol": "splatam", "psnr_db": 21.5, "ssim": 0.8,
                                             "ms_ssim": None}, None)  # fmt: skip

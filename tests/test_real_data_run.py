@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 from hydra import compose, initialize_config_dir
 
-from bench.cli import CONF_DIR
-from bench.run import run
+from bench.cli.entry import CONF_DIR
+from bench.run.lifecycle import run
 
 
 @pytest.mark.slow

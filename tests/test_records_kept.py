@@ -30,7 +30,7 @@ def finished_dir(path: Path, status: str = "ok") -> dict[str, bytes]:
 
 def files(path: Path) -> dict[str, bytes]:
     """Every file under the run dir, Hydra's log (``cli.log``) and ``.hydra/`` included: Hydra writes
-    them only for a job that does work (``bench.job_outputs``)."""
+    them only for a job that does work (``bench.run.job_outputs``)."""
     return {str(p.relative_to(path)): p.read_bytes() for p in sorted(path.rglob("*")) if p.is_file()}
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import pandas as pd
 
 from bench import schema
-from bench.report.plots import peak_column
+from bench.report.figures.runs import peak_column
 
 PAGE = Path(__file__).resolve().parents[1] / "docs" / "run-directory.md"
 BEGIN, END = "<!-- run-dir-schema:begin (python -m bench.schema) -->", "<!-- run-dir-schema:end -->"

@@ -14,13 +14,13 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from bench import cli
-from bench.config import to_run_config
-from bench.keys import run_keys
+from bench.cli import entry as cli
+from bench.config.compose import to_run_config
+from bench.config.identity import run_keys
+from bench.config.settings import plain
 from bench.report.names import synthetic_drive
 from bench.report.settings import SETTING_KEYS, _lookup
-from bench.study import load
-from bench.typed import plain
+from bench.sweep.study import load
 
 REPO = Path(__file__).resolve().parents[1]
 STUDIES = sorted(p.stem for p in (REPO / "conf" / "study").glob("*.yaml"))
@@ -118,7 +118,7 @@ def _tiny(job_overrides: tuple[str, ...], kitti_root: Path | None) -> list[str]:
 @pytest.mark.slow
 @pytest.mark.parametrize("name", STUDIES)
 def test_one_point_of_each_study_runs_at_tiny_size(name, at_repo, tmp_path, request):
-    from bench.run import run
+    from bench.run.lifecycle import run
 
     _, jobs = load(name)
     job = jobs[0]

@@ -7,8 +7,8 @@ import json
 import os
 from pathlib import Path
 
-from bench.progress import Phase, format_duration
-from bench.summary import (
+from bench.measure.progress import Phase, format_duration
+from bench.sweep.summary import (
     JOBS_ENV,
     JOBS_FILE,
     SweepSummary,
@@ -72,7 +72,7 @@ def test_sweep_progress_and_summary_file(tmp_path, monkeypatch):
 def _sweep_cfg(sweep_dir: Path, task: list[str]):
     from omegaconf import OmegaConf, open_dict
 
-    from bench.cli import compose
+    from bench.cli.entry import compose
 
     cfg = compose([], hydra=True)
     with open_dict(cfg):

@@ -5,7 +5,7 @@ included. C: the summary and the progress line account for every planned job, a 
 be composed and a study's jobs included. D: a bad setting every job shares is refused before the
 sweep, in one line, with no dir.
 
-The sweeps run through the CLI in this process with ``bench.run.run`` replaced by a stand-in that
+The sweeps run through the CLI in this process with ``bench.run.lifecycle.run`` replaced by a stand-in that
 validates the job as a run does and writes an ``ok`` record: what is tested is where each job
 writes and what the sweep says about it, not the SLAM run.
 """
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from bench import cli
+from bench.cli import entry as cli
 from bench.errors import ConfigError
 from tests.test_bad_input import run_cli
 
@@ -35,8 +35,8 @@ LEFT_OUT_VALUES = {
 @pytest.fixture
 def runs(monkeypatch: pytest.MonkeyPatch) -> list[Path]:
     """Replace the SLAM run by a stand-in; returns the run dirs it was given, in order."""
-    from bench import run as run_module
-    from bench.validate import validate
+    from bench.cli.validate import validate
+    from bench.run import lifecycle as run_module
 
     dirs: list[Path] = []
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 
-from bench.cli import CONF_DIR  # importing bench.cli registers the config schemas
-from bench.run import run
+from bench.cli.entry import CONF_DIR  # importing bench.cli.entry registers the config schemas
+from bench.run.lifecycle import run
 
 TINY = ["dataset.width=48", "dataset.height=32", "dataset.n_frames=9", "slam.tracking_iters=4",
         "slam.mapping_iters=4", "slam.refine_iters=0", "eval.lpips=false", "progress=false", "threads=1",

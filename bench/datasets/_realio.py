@@ -16,10 +16,10 @@ import numpy as np
 import torch
 from evo.core import sync
 
+from bench.config.settings import setting
 from bench.datasets.base import RecordedConfig
 from bench.errors import ConfigError, DatasetError
 from bench.slam.se3 import quat_to_rotmat
-from bench.typed import setting
 
 REPO = Path(__file__).resolve().parents[2]
 _LOG = logging.getLogger("bench.datasets")

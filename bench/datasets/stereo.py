@@ -24,10 +24,10 @@ import cv2
 import numpy as np
 import torch
 
+from bench.config.settings import setting
 from bench.datasets import _realio as realio
 from bench.datasets.base import RecordedConfig, TimedSequence
 from bench.errors import ConfigError
-from bench.typed import setting
 
 CACHE_VERSION = 1  # bump when the depth pipeline changes in a way the key does not capture
 DEFAULT_CACHE_DIR = "~/.cache/pocketbench/depth"

@@ -23,9 +23,9 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
+from bench.config.settings import SEED_MAX, as_config, setting
 from bench.datasets.base import DatasetConfig, TimedSequence
 from bench.errors import ConfigError, DatasetError
-from bench.typed import SEED_MAX, as_config, setting
 
 CAMERA_HEIGHT_M = 1.6
 SKY_RADIUS_M = 120.0
@@ -350,7 +350,7 @@ class SyntheticConfig(DatasetConfig):
 
     name: str = "synthetic"
     seed: int = setting(0, "int", lo=0, hi=SEED_MAX)  # the scene layout (which street); the run's seed does not
-    width: int = setting(320, "int", lo=16)  # px; 4x the pixels of 160x96, which the fused rasterizer affords
+    width: int = setting(320, "int", lo=16)  # px; a size the fused rasterizer affords on a CPU
     height: int = setting(192, "int", lo=16)  # px
     n_frames: int = setting(40, "int", lo=2)  # a drive of n_frames x speed_m_per_frame
     speed_m_per_frame: float = setting(0.5, "float", lo=0.0, lo_open=True)
@@ -462,7 +462,7 @@ class SyntheticSequence(TimedSequence):
         """Colour [H, W, 3] (supersampled) and exact z-depth [H, W] (pixel centres) for ``c2w``.
 
         ``brute_force`` tests every ray against every box of the scene: the reference the culled
-        cast must match pixel for pixel (the tests and benchmarks/synthetic_cost.py compare them).
+        cast must match pixel for pixel (the tests and profiling/synthetic_cost.py compare them).
         """
         s = self.supersample
         offs = (np.arange(s) + 0.5) / s - 0.5

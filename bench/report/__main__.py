@@ -13,7 +13,7 @@ from pathlib import Path
 
 from bench.errors import ArgumentParser, BenchError, ReportError
 from bench.report.build import load_labels, make_report, redraw
-from bench.report.plots import DPI, check_figure_options
+from bench.report.figures.output import DPI, check_figure_options
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -42,7 +42,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def study_inputs(args: argparse.Namespace) -> None:
     """``--study NAME``: the study's run dirs that exist, and its report options where the command line gives none."""
-    from bench.study import load
+    from bench.sweep.study import load
 
     overrides = [str(d) for d in args.dirs if "=" in str(d) and not d.exists()]
     args.dirs = [d for d in args.dirs if str(d) not in overrides]

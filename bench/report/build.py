@@ -14,11 +14,13 @@ import yaml
 
 from bench.errors import ReportError
 from bench.report.collect import collect, finished_run_tables, grouped_run_tables, stack_run_tables
+from bench.report.figures.make import make_plots
+from bench.report.figures.output import DPI
+from bench.report.figures.runs import read_keyframes
 from bench.report.names import use_method_names
 from bench.report.paper import load_paper_tables
-from bench.report.plots import DPI, make_plots, read_keyframes
 from bench.report.render import tables_markdown, to_latex
-from bench.report.scale import MILESTONES_FILE, read_milestones, scale_markdown
+from bench.report.route_scale import MILESTONES_FILE, read_milestones, scale_markdown
 from bench.report.settings import mixed_settings, settings_markdown
 from bench.report.stats import confidence_interval
 from bench.report.tables import SELECTABLE_METRICS, Table, build_tables
@@ -109,7 +111,7 @@ def _make_report(
     runs.to_csv(files[0], index=False)
     keyframes = finished_run_tables(runs, lambda run_dir: read_keyframes(run_dir, warnings.append))
     milestones = finished_run_tables(runs, lambda run_dir: read_milestones(run_dir, warnings.append))
-    files.append(out / KEYFRAMES_FILE)
+    files.append(out / POOLED_KEYFRAMES_FILE)
     stack_run_tables(keyframes).to_csv(files[-1], index=False)
 
     tables, table_warnings = build_tables(runs, load_paper_tables() if paper else None, baseline, metrics)
@@ -125,7 +127,7 @@ def _make_report(
     seed_statistics(tables, baseline).to_csv(files[-1], index=False)
 
     long_drives = any(len(t) for t in milestones.values())
-    if long_drives:  # runs made with eval.at_frames: the scale section (bench/report/scale.py)
+    if long_drives:  # runs made with eval.at_frames: the scale section (bench/report/route_scale.py)
         files.append(out / MILESTONES_FILE)
         stacked = stack_run_tables(milestones)
         stacked.to_csv(files[-1], index=False)
@@ -136,7 +138,7 @@ def _make_report(
     return ReportResult(out, runs, tables, files, collection.skipped, warnings)
 
 
-KEYFRAMES_FILE = "keyframes.csv"  # every finished run's keyframes.csv rows, keyed by its runs.csv path
+POOLED_KEYFRAMES_FILE = "keyframes.csv"  # every finished run's keyframes.csv rows, keyed by its runs.csv path
 TEXT_COLUMNS = ("strategy", "method", "dataset", "seq", "slam_preset", "eval_protocol", "status", "path")
 
 
@@ -161,9 +163,9 @@ def redraw(report_dir: Path, formats: tuple[str, ...] = ("png",), dpi: int = DPI
         raise ReportError(f"expected runs.csv columns {', '.join(missing)} in '{runs_path}', found none of them")
     _check_numbers(runs, runs_path)
     warnings: list[str] = []
-    keyframes = _stored_run_tables(report_dir / KEYFRAMES_FILE)
+    keyframes = _stored_run_tables(report_dir / POOLED_KEYFRAMES_FILE)
     if not keyframes:
-        warnings.append(f"no {KEYFRAMES_FILE} in '{report_dir}': per-keyframe figures need the run dirs")
+        warnings.append(f"no {POOLED_KEYFRAMES_FILE} in '{report_dir}': per-keyframe figures need the run dirs")
     milestones = _stored_run_tables(report_dir / MILESTONES_FILE)
     files = make_plots(runs, report_dir, warnings.append, formats, dpi, keyframes=keyframes, milestones=milestones,
                        long_drives=bool(milestones))

@@ -14,7 +14,7 @@ from typing import Any
 import pandas as pd
 import yaml
 
-CONFIG_FILE = "config.yaml"  # written by bench.run next to metrics.json, resolved
+CONFIG_FILE = "config.yaml"  # written by bench.run.lifecycle next to metrics.json, resolved
 # Config keys that decide a comparison, in the order the settings table shows them. The column
 # name in runs.csv is the dotted key itself, so a reader can paste it back as an override.
 SETTING_KEYS: tuple[str, ...] = (

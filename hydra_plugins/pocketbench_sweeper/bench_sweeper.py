@@ -21,7 +21,7 @@ from hydra.errors import HydraException
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from bench.record import record_refusal
+from bench.run.record import record_refusal
 
 log = logging.getLogger(__name__)
 
@@ -30,7 +30,7 @@ class BenchSweeper(BasicSweeper):
     """``hydra/sweeper=bench`` (the default in conf/config.yaml).
 
     ``+study=NAME`` (``conf/study/NAME.yaml``) sets ``study``: the sweep is then the study's sweeps,
-    one after another (``bench.study.expand``), each job in its own sweep's dir, with the rest of the
+    one after another (``bench.sweep.study.expand``), each job in its own sweep's dir, with the rest of the
     command line applied over the study's overrides.
     """
 
@@ -39,9 +39,9 @@ class BenchSweeper(BasicSweeper):
         self.study = study
 
     def split_arguments(self, overrides: list[Any], max_batch_size: int | None) -> list[list[list[str]]]:
-        """The jobs of the command line, each in a dir of its own (``bench.sweep``; shadows Hydra's
+        """The jobs of the command line, each in a dir of its own (``bench.sweep.plan``; shadows Hydra's
         staticmethod, which ``sweep`` calls through self)."""
-        from bench.sweep import expand
+        from bench.sweep.plan import expand
 
         jobs = expand(self.config, [o.input_line for o in overrides])
         n = max_batch_size or len(jobs) or 1
@@ -80,9 +80,9 @@ class BenchSweeper(BasicSweeper):
         """Composition failures are handled per job in ``_composes``; nothing aborts the sweep."""
 
     def _composes(self, overrides: Sequence[str], job_idx: int) -> bool:
-        from bench.cli import composition_error
-        from bench.summary import record_job
-        from bench.sweep import job_dir, job_name
+        from bench.cli.entry import composition_error
+        from bench.sweep.plan import job_dir, job_name
+        from bench.sweep.summary import record_job
 
         try:
             self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
@@ -101,7 +101,7 @@ class BenchSweeper(BasicSweeper):
 
 def _run_keys(config: Any, overrides: Sequence[str]) -> dict[str, Any]:
     """Best-effort run keys of a job that never composed: its overrides over the sweep's base config."""
-    from bench.keys import run_keys
+    from bench.config.identity import run_keys
 
     given = dict(o.lstrip("+~").partition("=")[::2] for o in overrides)
     keys = ("strategy.name", "dataset.name", "slam.name", "seed")

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bench.config.settings import as_config
 from bench.datasets import _realio as realio
 from bench.datasets.stereo import DepthCache, StereoParams, disparity_to_depth
 from bench.errors import ConfigError
-from bench.typed import as_config
 
 
 def test_disparity_to_depth_masks_invalid_and_far():

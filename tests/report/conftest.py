@@ -40,7 +40,7 @@ def write_run(
         "cpu_rss_peak_mib": 900.0, "torch_live_peak_mib": 300.0, "cuda_alloc_peak_mib": None,
         "cuda_reserved_peak_mib": None, "peak_mem_mib": 300.0,
     }  # fmt: skip
-    # what the real harness adds beside the documented metrics (bench/run.py)
+    # what the real harness adds beside the documented metrics (bench/run/lifecycle.py)
     values.update(
         peak_mem_source="torch_live", ate_mean_m=0.09, ate_max_m=0.2, ate_max_diff_s=0.01,
         ate_first_frame=0, ate_last_frame=19, path_length_m=4.1, phase_s={"track": 10.0, "map": 8.0},

@@ -9,7 +9,8 @@ import pytest
 
 from bench.report.build import redraw
 from bench.report.collect import collect
-from bench.report.plots import make_plots, seed_band
+from bench.report.figures.make import make_plots
+from bench.report.figures.runs import seed_band
 from bench.report.style import COLOURS, MAX_SERIES, RATIO_STYLES, panel_groups, ratio_style, strategy_colour
 from bench.report.tables import Variant
 

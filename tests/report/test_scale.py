@@ -8,8 +8,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench.report.plots import distance_driven
-from bench.report.scale import _answer, _reference_length, run_slopes, sequence_lengths
+from bench.report.figures.runs import distance_driven
+from bench.report.route_scale import _answer, _reference_length, run_slopes, sequence_lengths
 from bench.report.tables import variants
 
 

@@ -1,4 +1,4 @@
-"""The gsplat backend against the torch reference, on the scenes of ``benchmarks/raster_bench.py``.
+"""The gsplat backend against the torch reference, on the scenes of ``profiling/raster_bench.py``.
 
 On CUDA with gsplat installed: the real gsplat against the reference on the same device, values,
 statistics and gradients (parameters and pose). Elsewhere: the backend's own code run over
@@ -36,7 +36,7 @@ GRAD_COS = 0.999
 
 
 def _raster_bench():
-    spec = importlib.util.spec_from_file_location("raster_bench", ROOT / "benchmarks" / "raster_bench.py")
+    spec = importlib.util.spec_from_file_location("raster_bench", ROOT / "profiling" / "raster_bench.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod

@@ -14,7 +14,7 @@ import torch
 
 from bench.slam.gaussians import GaussianMap
 from bench.slam.raster import rasterize
-from bench.strategy import PruneContext, Strategy, TrackingContext
+from bench.slam.strategy import PruneContext, Strategy, TrackingContext
 
 
 @dataclass

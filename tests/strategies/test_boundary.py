@@ -9,7 +9,7 @@ import torch
 
 from bench.errors import StrategyError
 from bench.slam.gaussians import GaussianMap
-from bench.strategy import CheckedStrategy, MappingContext, PruneContext, Strategy
+from bench.slam.strategy import CheckedStrategy, MappingContext, PruneContext, Strategy
 
 
 def _map(n: int) -> GaussianMap:
@@ -82,7 +82,7 @@ def test_a_strategy_error_raised_inside_a_hook_gets_the_name():
 
 def test_every_hook_of_the_contract_is_forwarded_and_checked():
     """The wrapper's hooks come from one table: each hook of ``Strategy`` reaches the strategy through it."""
-    import bench.strategy as contract
+    import bench.slam.strategy as contract
 
     public = {n for n, v in vars(Strategy).items() if callable(v) and not n.startswith("_")}
     assert set(contract.HOOKS) == public

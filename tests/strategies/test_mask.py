@@ -7,7 +7,7 @@ import torch
 
 from bench.errors import ConfigError
 from bench.slam.gaussians import ParamSpec
-from bench.strategy import MappingContext, load_strategy
+from bench.slam.strategy import MappingContext, load_strategy
 from strategies.mask import PARAM_LOGITS, STATE_MASKED_RUN, MaskPruning
 
 

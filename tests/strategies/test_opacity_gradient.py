@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from bench.errors import ConfigError
-from bench.strategy import load_strategy
+from bench.slam.strategy import load_strategy
 from strategies.gradient import STATE_GRAD_SUM, GradientPruning
 from strategies.opacity import STATE_SIGNIFICANCE, OpacityPruning, volume_factor
 

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from bench.errors import ConfigError
-from bench.strategy import load_strategy
+from bench.slam.strategy import load_strategy
 from strategies._area import coverage
 from strategies.area import AreaPruning
 from strategies.pocket import PocketPruning, keep_top_per_tile, tile_budgets

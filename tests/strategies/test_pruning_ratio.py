@@ -8,7 +8,7 @@ import math
 import pytest
 import torch
 
-from bench.strategy import PruneContext, Strategy, load_strategy
+from bench.slam.strategy import PruneContext, Strategy, load_strategy
 
 BUILT_INS = ["none", "pocket", "area", "opacity", "gradient", "mask"]
 

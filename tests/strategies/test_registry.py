@@ -11,9 +11,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from bench import strategy as bench_strategy
 from bench.errors import ConfigError, StrategyError
-from bench.strategy import Strategy, available, load_strategy
+from bench.slam import strategy as bench_strategy
+from bench.slam.strategy import Strategy, available, load_strategy
 
 BUILT_INS = ["area", "gradient", "mask", "none", "opacity", "pocket"]
 CONF = Path(__file__).resolve().parents[2] / "bench" / "conf" / "strategy"
@@ -54,7 +54,7 @@ def test_third_party_plugin_is_found_through_its_entry_point(tmp_path, monkeypat
         from dataclasses import dataclass
         from typing import ClassVar
 
-        from bench.strategy import Strategy, top_k_keep
+        from bench.slam.strategy import Strategy, top_k_keep
 
 
         @dataclass
@@ -79,8 +79,8 @@ def test_third_party_plugin_is_found_through_its_entry_point(tmp_path, monkeypat
         with pytest.raises(ConfigError):
             load_strategy("mine", {"thresold": 0.7})
         # registered the one typed way: +strategy=mine composes its dataclass, typed like a built-in's
-        from bench.cli import compose, composition_error
-        from bench.config import register_configs, to_run_config
+        from bench.cli.entry import compose, composition_error
+        from bench.config.compose import register_configs, to_run_config
 
         assert "mine" in register_configs()  # no YAML of its own: strategy/mine built on its schema
         cfg = to_run_config(compose(["+strategy=mine", "strategy.params.threshold=0.25"]))

@@ -15,7 +15,7 @@ PLUGIN = '''
 from dataclasses import dataclass
 from typing import ClassVar
 
-from bench.strategy import Strategy, top_k_keep
+from bench.slam.strategy import Strategy, top_k_keep
 
 
 @dataclass

@@ -1,0 +1,1 @@
+"""What a run measures about itself while it runs: peak memory per keyframe window, time per phase, progress."""

@@ -1,0 +1,257 @@
+"""``run(cfg) -> RunResult``: one SLAM run wired end to end, writing its run directory.
+
+The composed Hydra config is validated and converted once (``bench.cli.validate.validate``, which also
+builds the strategy and a given LPIPS model; the CLI's own check hands its result over); everything
+below receives dataclasses. A run reads as its data flows: ``bench.run.setup.build`` makes the SLAM
+system around the opened sequence, ``bench.run.loop.run_frames`` feeds it the frames and writes one
+``keyframes.csv`` row per keyframe window, ``bench.run.evaluation.finish`` refines, summarises memory,
+evaluates and plots. Its keys come from ``bench.config.identity``.
+
+Everything a run learns is written as it goes: ``keyframes.csv`` rows are flushed per keyframe
+window and ``metrics.json`` is replaced atomically (``bench.run.record.RunRecord``, its one writer),
+so an interrupted or lost run keeps what it computed. A known failure (``BenchError``) becomes status
+``failed`` with its one-line message; ``TrackingLost`` becomes status ``lost`` and is still evaluated
+on the frames tracked.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from bench import schema
+from bench.run import job_outputs
+from bench.cli.validate import ValidatedRun, validate
+from bench.conf import config_files
+from bench.config.compose import RunConfig
+from bench.config.identity import run_keys
+from bench.config.settings import plain
+from bench.datasets import FrameSequence
+from bench.errors import BenchError, ConfigError
+from bench.report.figures.pruned_run import PruneViz
+from bench.run import checkpoint as ckpt
+from bench.run import evaluation, loop, provenance
+from bench.run.determinism import repeatable
+from bench.run.loop import TRAJ_EST, flushed_rows
+from bench.run.record import RunRecord, is_leftover, owner, promote, read_record, record_refusal, write_text
+from bench.run.resume import redo_reason
+from bench.run.setup import build, describe, open_seq, restore
+from bench.run.signals import Interrupted, Preemption, deferred_signals, held_preemption, raise_on_signals
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class RunResult:
+    status: str  # ok | lost | failed | interrupted
+    out_dir: Path
+    metrics: dict[str, Any] = field(default_factory=dict)
+    error: str | None = None
+    skipped: bool = False  # resume found completed results of the same config, code and inputs
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        raise ConfigError(f"device '{name}': expected cpu or auto on a machine without cuda, found no cuda device")
+    if name != "cpu" and not name.startswith("cuda"):
+        raise ConfigError(f"device: expected auto, cpu or cuda[:N], found '{name}'")
+    return torch.device(name)
+
+
+def make_out_dir(out: Path) -> None:
+    """Create the run dir; a path that cannot be a writable dir is one ``ConfigError`` line."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / ".write_test"
+        probe.touch()
+        probe.unlink()
+    except FileExistsError:
+        raise ConfigError(f"output dir: expected a directory at {out}, found a file in the way") from None
+    except NotADirectoryError:
+        raise ConfigError(f"output dir: expected a directory at {out}, found a file on its path") from None
+    except OSError as exc:
+        raise ConfigError(f"output dir: expected a writable directory at {out}, found: {exc.strerror or exc}") from None
+
+
+def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: ValidatedRun | None = None) -> RunResult:
+    """Run one (strategy, dataset, seq, seed) combination and write its run directory.
+
+    Order matters: the config is validated and the data opened before anything is written, so a
+    refused run leaves no half-made dir; a stored run is skipped only when config, code version
+    and input files all match (``bench.run.resume``); once running, SIGINT/SIGTERM end the run as
+    ``interrupted`` with what the frames done allow (then ``Interrupted`` is re-raised).
+    ``built``: what ``bench.cli.validate.validate`` made of this same config already (the CLI's check
+    before Hydra starts), used as it is; a config that differs from it is validated again.
+    """
+    if isinstance(cfg, RunConfig):
+        cfg = OmegaConf.structured(cfg)
+    out = Path(out_dir or cfg.out_dir or ".").resolve()
+    metrics_path = out / schema.METRICS_FILE
+    try:
+        if built is None or built.tree != {k: v for k, v in plain(cfg).items() if k != "hydra"}:
+            built = validate(cfg)
+    except ConfigError as exc:  # in a sweep the job is recorded; a single run was refused by the CLI already
+        make_out_dir(out)
+        return _refused(out, str(exc), run_keys(cfg), task_cfg=cfg)
+    conf = built.config  # below here only dataclasses travel
+    make_out_dir(out)
+    stored = _previous(out)
+    keys = run_keys(conf, built.tree)
+    try:
+        device = resolve_device(conf.device)
+        ckpt.check_files(out)
+        seq = open_seq(conf)  # the loaders draw from their own seeded generators, not the global ones
+    except BenchError as exc:  # bad data found before any work
+        return _refused(out, str(exc), keys, OmegaConf.to_yaml(cfg, resolve=True), cfg)
+    keys = run_keys(conf, built.tree, seq)
+    missing = [name for name, digest in keys["inputs"].items() if digest == "missing"]
+    if missing:  # the fingerprint found them gone: refuse now, not at the frame that reads one
+        more = f" and {len(missing) - 1} more" if len(missing) > 1 else ""
+        return _refused(out, f"input files: expected every file the dataset lists, found {missing[0]} missing{more}",
+                        keys, OmegaConf.to_yaml(cfg, resolve=True), cfg)
+    record = RunRecord(metrics_path, {
+        "status": "running", "error": None, "run": keys, "determinism": {}, "metrics": {}, "provenance": {},
+        "owner": owner(),
+    })  # fmt: skip
+    start: dict[str, Any] | None = None  # the checkpoint a resumed run starts from
+    level = logging.INFO  # of the redo line: a warning when a checkpoint was there but unusable
+    final = out  # the run dir; a redo of a finished run works in its staging dir until it finishes
+    reason = redo_reason(stored, keys) if conf.resume else "resume=false"
+    if conf.resume and reason is None:
+        log.info("skipping %s: completed results of the same config, code and inputs exist", out)
+        return RunResult(stored["status"], out, stored.get("metrics", {}), stored.get("error"), skipped=True)
+    if stored is not None and stored.get("status") in schema.FINISHED:
+        out = out / schema.REDO_DIR
+        record.path = out / schema.METRICS_FILE
+        make_out_dir(out)
+        staged = _previous(out)  # a redo stopped earlier: its checkpoint lets this one resume
+        if conf.resume and staged is not None and redo_reason(staged, keys) is None:
+            promote(out, final)  # a redo that finished but was stopped while moving in
+            return RunResult(staged["status"], final, staged.get("metrics", {}), staged.get("error"), skipped=True)
+        stored = staged or stored
+    if conf.resume:
+        if stored is not None and stored.get("status") == "interrupted" and ckpt.exists(out):
+            start, why = ckpt.find(out, keys, flushed_rows(out))
+            if start is None:
+                reason, level = f"its checkpoint was not used: {why}; starting over from frame 0", logging.WARNING
+        if start is not None:
+            log.info("resuming %s from frame %d (checkpoint of keyframe %d)", out, start["frame"], start["keyframe"])
+        elif stored is not None:
+            log.log(level, "redoing %s: %s", final, reason)
+    job_outputs.keep(final, cfg, out)
+    write_text(out / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
+    record["checkpoint"] = {"every": conf.checkpoint.every, "written": 0, "mib_last": None, "write_s_total": 0.0,
+                            "resumed_from_frames": []}  # fmt: skip
+    if start is None:
+        (out / TRAJ_EST).unlink(missing_ok=True)
+    else:  # rows written after the checkpoint go; the loop appends from there
+        ckpt.truncate_rows(out / TRAJ_EST, 1, start["rows"]["traj"])
+        ckpt.truncate_rows(out / schema.KEYFRAMES_FILE, 1, start["rows"]["keyframes"])
+        if (out / schema.MILESTONES_FILE).exists():
+            ckpt.truncate_rows(out / schema.MILESTONES_FILE, 1, start["rows"].get("milestones", 0))
+        record["checkpoint"] = {**start["stats"], "every": conf.checkpoint.every,
+                                "resumed_from_frames": [*start["stats"]["resumed_from_frames"], start["frame"]]}
+    record.save()
+    if start is None:
+        ckpt.remove(out)  # a previous run's checkpoints: the record they belonged to is replaced now
+    stop: Interrupted | None = None
+    preempt = Preemption()
+    try:
+        with raise_on_signals(), held_preemption() as preempt, \
+                repeatable(conf.seed, conf.threads, conf.determinism, device) as det:
+            record["determinism"] = det
+            record["provenance"] = provenance.collect(device)  # after the thread count is set
+            record["provenance"]["config_files"] = _config_files()
+            status, error, metrics, stop = _execute(built, out, device, record, seq, start, preempt)
+    except Interrupted as exc:  # outside the frame loop (build, refinement, evaluation): keep what is there
+        n_done = record["metrics"].get("num_frames", 0)
+        status, error, metrics, stop = "interrupted", f"{exc} after {n_done} frames", record["metrics"], exc
+    except BenchError as exc:
+        status, error, metrics = "failed", str(exc), record["metrics"]
+    except Exception as exc:  # unexpected: record it so the sweep goes on, then re-raise for the traceback
+        record.close(status="failed", error=f"{type(exc).__name__}: {exc}".splitlines()[0])
+        raise
+    with deferred_signals():  # a second Ctrl-C must not cut the record in half
+        record.close(status=status, error=error, metrics=metrics)
+        if status != "interrupted":
+            ckpt.remove(out)  # finished (or failed on its data): a rerun never resumes it
+            if out != final and status in schema.FINISHED:
+                promote(out, final)  # only a redo that finishes replaces the finished record
+                out = final
+    if stop is not None:
+        if preempt.signum is not None and preempt.signum == stop.signum:
+            log.warning("%s: preempted after %d frames; checkpoint written, the launcher requeues the job",
+                        out, metrics.get("num_frames", 0))
+            preempt.hand_over()  # the launcher's own handler (submitit: requeue, then exit)
+        raise Interrupted(stop.signum, f"{error}; partial results in {out}")
+    return RunResult(status, out, metrics, error)
+
+
+def _refused(out: Path, error: str, keys: dict[str, Any], config_yaml: str | None = None,
+             task_cfg: DictConfig | None = None) -> RunResult:
+    """A run refused before any work: recorded ``failed``, unless ``out`` holds a previous run's
+    record to keep (finished, resumable or live), which a refusal for a passing reason (data briefly
+    unreachable, no CUDA on this node) must not replace."""
+    kept = record_refusal(out, error, keys, config_yaml, task_cfg)
+    if kept is not None:
+        error = f"{error} (nothing written: {out} keeps its {kept} record)"
+    return RunResult("failed", out, {}, error)
+
+
+def _config_files() -> dict[str, str] | None:
+    """The file each group choice came from (a user's ./conf or the package), when Hydra composed the run."""
+    from hydra.core.hydra_config import HydraConfig
+
+    return config_files(HydraConfig.get().runtime.choices) if HydraConfig.initialized() else None
+
+
+def _previous(out: Path) -> dict[str, Any] | None:
+    """The metrics.json a previous run left here; a ``running`` one whose process died is marked interrupted."""
+    path = out / schema.METRICS_FILE
+    stored = read_record(out)
+    if stored is None:
+        return None
+    if is_leftover(stored):
+        who = stored.get("owner") or {}
+        frames = (stored.get("metrics") or {}).get("num_frames", 0)
+        stored = RunRecord(path, stored)
+        stored.close(status="interrupted",
+                     error=f"killed: process {who.get('pid')} stopped while running, after {frames} frames")
+        log.warning("%s: the previous run was killed while running (pid %s); recorded as interrupted",
+                    out, who.get("pid"))
+    return stored
+
+
+def _execute(built: ValidatedRun, out: Path, device: torch.device, record: RunRecord, seq: FrameSequence,
+             start: dict[str, Any] | None = None, preempt: Preemption | None = None):
+    t_start = time.perf_counter()
+    cfg = built.config
+    parts = build(cfg, device, seq, built)
+    parts.keys = record["run"]
+    if cfg.viz.pruning:
+        parts.viz = parts.system.on_prune = PruneViz(parts.system, out, cfg.viz.every, describe(parts.keys))
+    record["metrics"] = metrics = {"num_frames": 0, "num_keyframes": 0}
+    if start is not None:
+        restore(parts, start)
+        if parts.viz is not None:  # the stopped run's pictures up to the checkpoint are this run's too
+            parts.viz.written = [p for p in sorted(out.glob("pruned_kf*.npz")) if _kf_of(p) <= start["keyframe"]]
+    drive = loop.run_frames(cfg, parts, out, record, start, preempt)
+    with deferred_signals() if drive.stop is not None else contextlib.nullcontext():
+        metrics.update(evaluation.finish(cfg, parts, drive, out, device))
+        metrics["wall_s"] = round(time.perf_counter() - t_start, 3)  # the whole run: loading to figures
+    return drive.status, drive.error, metrics, drive.stop
+
+
+def _kf_of(path: Path) -> int:
+    """The keyframe a ``pruned_kfNNN.npz`` belongs to (-1 for a name not of that form)."""
+    digits = path.stem.removeprefix("pruned_kf")
+    return int(digits) if digits.isdigit() else -1

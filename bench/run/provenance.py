@@ -1,0 +1,115 @@
+"""Where a result came from: code version, packages, device, config hash."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import platform
+import subprocess
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+import torch
+
+PACKAGES = (
+    "pocketbench", "torch", "numpy", "evo", "torchmetrics", "hydra-core", "opencv-python-headless", "numba", "llvmlite",
+)
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _git(*args: str) -> str | None:
+    try:
+        out = subprocess.run(["git", *args], cwd=REPO, capture_output=True, text=True, timeout=5)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return out.stdout.strip() if out.returncode == 0 else None
+
+
+def cpu_target() -> dict[str, str | None]:
+    """The instruction sets the compiled kernels were built for.
+
+    numba compiles for the host CPU (or ``NUMBA_CPU_NAME``) and torch dispatches its CPU kernels by
+    capability, so one commit and seed can give different floats on two machines (an AVX-512 host
+    and an AVX2 one); a figure that does not repeat elsewhere is read against these.
+    """
+    try:
+        import llvmlite.binding as llvm
+        import numba
+
+        numba_cpu = numba.config.CPU_NAME or llvm.get_host_cpu_name()
+    except ImportError:
+        numba_cpu = None
+    return {"numba_cpu": numba_cpu, "torch_cpu_capability": torch.backends.cpu.get_cpu_capability()}
+
+
+def collect(device: torch.device) -> dict[str, Any]:
+    versions = {}
+    for name in PACKAGES:
+        try:
+            versions[name] = version(name)
+        except PackageNotFoundError:
+            versions[name] = None
+    status = _git("status", "--porcelain", "--untracked-files=no")
+    return {
+        "git_commit": _git("rev-parse", "HEAD"),
+        "git_dirty": bool(status) if status is not None else None,
+        "versions": versions,
+        "device": str(device),
+        "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else platform.processor() or "cpu",
+        "torch_threads": torch.get_num_threads(),
+        **cpu_target(),
+        "python": platform.python_version(),
+        "hostname": platform.node(),
+    }
+
+
+# what a result depends on (the configs live in bench/conf); the report code only reads results,
+# except the figures a run draws into its own dir (RUN_FIGURES), which are part of what a run writes
+CODE_PATHS = ("bench", "strategies", "hydra_plugins", "pyproject.toml")
+READ_ONLY_PATHS = ("bench/report/",)
+RUN_FIGURES = ("bench/report/figures/run_memory.py", "bench/report/figures/pruned_run.py")
+
+
+def _is_code(path: str) -> bool:
+    return not path.startswith(READ_ONLY_PATHS) or path in RUN_FIGURES
+
+
+def code_version() -> dict[str, Any]:
+    """Commit, the code tree's hash, dirty flag and a hash of the uncommitted code diff (``None``
+    outside a git checkout).
+
+    ``code_tree`` hashes the committed files under ``CODE_PATHS`` (report code left out), so that a
+    commit that touches only docs, tests or reports leaves it, and a finished sweep, as they were.
+    The diff hash makes two different uncommitted edits on one commit two code versions.
+    """
+    paths = [*CODE_PATHS, *(f":(exclude){p}" for p in READ_ONLY_PATHS)]
+    commit = _git("rev-parse", "HEAD")
+    listing = _git("ls-tree", "-r", "HEAD", "--", *CODE_PATHS)  # ls-tree takes no exclude pathspecs
+    tree = None if listing is None else "\n".join(
+        line for line in listing.splitlines() if _is_code(line.split("\t", 1)[-1])
+    )
+    # git's exclude pathspecs cannot take a file back in, so the run's figures are asked about apart
+    status = _git("status", "--porcelain", "--untracked-files=no", "--", *paths)
+    status_figures = _git("status", "--porcelain", "--untracked-files=no", "--", *RUN_FIGURES)
+    dirty = bool(status) or bool(status_figures) if status is not None else None
+    diff = None
+    if dirty:
+        diff = (_git("diff", "HEAD", "--", *paths) or "") + (_git("diff", "HEAD", "--", *RUN_FIGURES) or "")
+    try:
+        package = version("pocketbench")
+    except PackageNotFoundError:
+        package = None
+    return {
+        "git_commit": commit,
+        "code_tree": hashlib.sha256(tree.encode()).hexdigest()[:12] if tree else None,
+        "git_dirty": dirty,
+        "diff_sha": hashlib.sha256(diff.encode()).hexdigest()[:12] if diff else None,
+        "package": package,
+    }
+
+
+def config_hash(cfg: dict[str, Any]) -> str:
+    """Stable hash of the result-affecting config (what 'the same run' means for resume)."""
+    blob = json.dumps(cfg, sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:12]

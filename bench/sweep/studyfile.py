@@ -1,0 +1,82 @@
+"""A study file as data: its sweeps, their runs' overrides, and its report options (``bench.sweep.study`` loads it).
+
+Kept apart from ``bench.sweep.study`` because the sweeper (``bench.sweep.plan``) expands a study's sweeps while
+``bench.sweep.study`` asks the sweeper for each run's dir: neither imports the other through this module.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bench.errors import ConfigError
+
+GROUP = "study"
+
+
+@dataclass
+class Study:
+    """One study file, composed: its sweeps (name -> overrides, sweeps as ``a,b,c``) and report options."""
+
+    name: str
+    sweeps: dict[str, list[str]]
+    report: dict[str, Any] = field(default_factory=dict)  # out (the folder), paper, baseline, format, dpi
+
+
+@dataclass(frozen=True)
+class Job:
+    """One run of a study: the overrides it is composed with and the dir it writes."""
+
+    sweep: str
+    overrides: tuple[str, ...]
+    run_dir: Path
+
+
+def parse(name: str, node: Mapping[str, Any] | None) -> Study:
+    """The ``hydra.sweeper.study`` node of a composed config as a ``Study``; one line if it is malformed."""
+    if not isinstance(node, Mapping) or not isinstance(node.get("sweeps"), Mapping) or not node["sweeps"]:
+        raise ConfigError(f"study '{name}': expected hydra.sweeper.study.sweeps, a mapping of sweep name to "
+                          f"overrides, found {node!r}")
+    sweeps = {}
+    for sweep, overrides in node["sweeps"].items():
+        if not isinstance(overrides, Sequence) or isinstance(overrides, str) or \
+                not all(isinstance(o, str) for o in overrides):
+            raise ConfigError(f"study '{name}' sweep '{sweep}': expected a list of overrides, found {overrides!r}")
+        sweeps[str(sweep)] = list(overrides)
+    report = dict(node.get("report") or {})
+    return Study(name, sweeps, report)
+
+
+def expand(study: Study, extra: Sequence[str] = ()) -> list[tuple[str, list[str]]]:
+    """``(sweep name, job overrides)`` for every run, in order: each sweep's product of ``a,b,c`` values,
+    with ``extra`` (the rest of the command line) applied over the study's own overrides.
+
+    A sweep runs in ``multirun/<its name>`` unless its overrides name another ``sweep_name`` (two
+    products sharing one sweep dir)."""
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper  # Hydra's own expansion (hydra-core 1.3)
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+    from hydra.errors import HydraException
+
+    parser = OverridesParser.create()
+    jobs = []
+    for sweep, overrides in study.sweeps.items():
+        try:
+            parsed = parser.parse_overrides([f"sweep_name={sweep}", *overrides, *extra])
+        except HydraException as exc:
+            found = str(exc).strip().splitlines()[0]
+            raise ConfigError(f"study '{study.name}' sweep '{sweep}': expected overrides as on a command line, "
+                              f"found: {found}") from None
+        for job in BasicSweeper.split_arguments(parsed, None)[0]:
+            jobs.append((next(o.split("=", 1)[1] for o in job if o.startswith("sweep_name=")), job))
+    return jobs
+
+
+def check_name(name: str) -> None:
+    """One line unless ``name`` has a study file (else Hydra takes ``+study=NAME`` for a new setting)."""
+    from bench.conf import group_files
+
+    if name not in group_files(GROUP):
+        found = ", ".join(sorted(group_files(GROUP))) or "none (no conf/study/ in the current directory)"
+        raise ConfigError(f"unknown study '{name}': expected a file conf/study/{name}.yaml, found: {found}")

@@ -1,0 +1,184 @@
+"""Where a map's decibels go: one run's fit taken apart, cause by cause.
+
+Drives the SLAM system of a config over its frames (the same ``System`` a run builds, seeded the
+same way) and prints:
+
+- per keyframe, its own render right after its mapping: PSNR over the whole image, over the pixels
+  with observed depth and over those without (the ``kf_psnr_*`` columns of ``keyframes.csv``), and
+  the whole-image PSNR of the depth-masked images (SplaTAM's evaluation: masked pixels count as perfect);
+- the convergence curve of the first keyframe: PSNR against mapping iteration (``--curve``);
+- from the final map at the estimated poses: keyframes against the frames between them, each split
+  into pixels with and without depth, and the dB a per-frame affine brightness (least squares
+  ``a * render + b`` over the pixels with depth) would add: what exposure changes cost;
+- a table that gives each cause its dB.
+
+    python profiling/fit_diagnosis.py                                   # KITTI 06 shared frames, 1/2, 20 frames
+    python profiling/fit_diagnosis.py --frames 51 --overrides "slam=faithful"
+    python profiling/fit_diagnosis.py --overrides "seq=04" --curve 100,300,1000
+
+Defaults: ``dataset=kitti dataset.root=<shared>/data/kitti seq=06`` (1/2 resolution), ``threads=2``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # measure the checkout this file sits in, not whichever one is pip-installed
+SHARED_KITTI = ROOT.parent / "shared" / "data" / "kitti"  # ../shared beside the checkout
+DEFAULT = f"dataset=kitti dataset.root={SHARED_KITTI} seq=06 threads=2"
+
+
+def psnr(sq: torch.Tensor, sel: torch.Tensor | None = None) -> float:
+    """``region_psnr_db`` with NaN for an empty region, so region means skip it."""
+    from bench.metrics.image import region_psnr_db
+
+    value = region_psnr_db(sq, sel)
+    return math.nan if value is None else value
+
+
+def affine_gain_db(pred: torch.Tensor, target: torch.Tensor, sel: torch.Tensor) -> float:
+    """dB added over ``sel`` by the best ``a * pred + b`` per frame (least squares over ``sel``)."""
+    p, t = pred[sel].double().reshape(-1), target[sel].double().reshape(-1)
+    if p.numel() < 2:
+        return math.nan
+    A = torch.stack([p, torch.ones_like(p)], 1)
+    coef = torch.linalg.lstsq(A, t[:, None]).solution[:, 0]
+    before = float((p - t).pow(2).mean())
+    after = float((A @ coef - t).pow(2).mean())
+    return 10.0 * math.log10(before / after) if after > 0 else math.inf
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--overrides", default="", help="Hydra overrides after the defaults")
+    ap.add_argument("--frames", type=int, default=20, help="frames to drive (max_frames)")
+    ap.add_argument("--curve", default="50,100,200,500", help="mapping iterations at which keyframe 0 is scored")
+    args = ap.parse_args()
+
+    from bench.cli.entry import compose
+    from bench.cli.validate import validate
+    from bench.run.determinism import repeatable
+    from bench.run.setup import open_seq
+    from bench.slam.system import System
+
+    overrides = [*shlex.split(DEFAULT), *shlex.split(args.overrides)]
+    built = validate(compose(overrides))
+    cfg = built.config
+    seq = open_seq(cfg)
+    n = min(len(seq), args.frames)
+    device = torch.device("cpu")
+    curve_at = sorted(int(c) for c in args.curve.split(",") if c.strip())
+    print(f"# fit diagnosis: {seq.name} {seq.width}x{seq.height}, {n} frames, preset {cfg.slam.name}, "
+          f"overrides: {' '.join(overrides)}")
+
+    # convergence curve: keyframe 0 alone, mapped for the largest count, scored along the way
+    with repeatable(cfg.seed, cfg.threads, cfg.determinism, device):
+        import dataclasses
+
+        slam = dataclasses.replace(cfg.slam, mapping_iters=max(curve_at))
+        system = System(slam, seq.K, seq.height, seq.width, built.strategy, cfg.prune, device)
+        frame0 = seq[0]
+        rgb0, depth0 = system.observe(frame0)
+        curve: list[tuple[int, float, float, float]] = []
+        step = system.map.optimizer.step
+        count = [0]
+        eye = torch.eye(4)
+
+        def counted_step(*a, **k):
+            res = step(*a, **k)
+            count[0] += 1
+            if count[0] in curve_at:
+                with torch.no_grad():
+                    sq = (system.render(eye).color.clamp(0, 1) - rgb0).pow(2).mean(-1)
+                has = depth0 > 0
+                curve.append((count[0], psnr(sq), psnr(sq, has), time.perf_counter() - t0))
+            return res
+
+        system.map.optimizer.step = counted_step
+        t0 = time.perf_counter()
+        system.step(frame0)
+
+    # the run itself
+    with repeatable(cfg.seed, cfg.threads, cfg.determinism, device):
+        system = System(cfg.slam, seq.K, seq.height, seq.width, built.strategy, cfg.prune, device)
+        kf_rows = []
+        t0 = time.perf_counter()
+        for i in range(n):
+            frame = seq[i]
+            res = system.step(frame)
+            if res.is_keyframe:
+                d = res.diag
+                masked = d["kf_psnr_depth_db"] - 10 * math.log10(d["kf_depth_frac"]) if d["kf_depth_frac"] else math.nan
+                kf_rows.append((res.keyframe_index, i, d["kf_psnr_db"], d["kf_psnr_depth_db"],
+                                d["kf_psnr_nodepth_db"], masked, len(system.map)))
+        wall = time.perf_counter() - t0
+        system.refine(cfg.slam.refine_iters)  # as a run does before it evaluates (0 = none)
+        stats = {"kf": [], "between": []}
+        with torch.no_grad():
+            kf_frames = {kf.index for kf in system.keyframes}
+            for i, w2c in enumerate(system.poses):
+                frame = seq[i]
+                rgb, depth = system.observe(frame)
+                pred = system.render(w2c).color.clamp(0, 1)
+                sq = (pred - rgb).pow(2).mean(-1)
+                has = depth > 0
+                frac = float(has.float().mean())
+                row = (psnr(sq), psnr(sq, has), psnr(sq, ~has), psnr(sq, has) - 10 * math.log10(max(frac, 1e-9)),
+                       affine_gain_db(pred, rgb, has))
+                stats["kf" if frame.index in kf_frames else "between"].append(row)
+
+    print(f"\nrun: {n} frames in {wall:.1f} s (SLAM loop, fit diagnostics included), {len(system.map)} Gaussians")
+    print("\n## each keyframe right after its mapping (PSNR dB)\n")
+    print("| kf | frame | whole image | with depth | without depth | depth-masked (SplaTAM) | Gaussians |")
+    print("|---|---|---|---|---|---|---|")
+    for r in kf_rows:
+        print(f"| {r[0]} | {r[1]} | {r[2]:.2f} | {r[3]:.2f} | "
+              f"{'-' if r[4] is None else f'{r[4]:.2f}'} | {r[5]:.2f} | {r[6]} |")
+    print("\n## keyframe 0 against mapping iterations (alone, before any other frame)\n")
+    print("| iterations | whole image dB | with depth dB | s |")
+    print("|---|---|---|---|")
+    for it, full, dep, s in curve:
+        print(f"| {it} | {full:.2f} | {dep:.2f} | {s:.1f} |")
+
+    def mean(rows: list, k: int) -> float:
+        vals = [r[k] for r in rows if math.isfinite(r[k])]
+        return sum(vals) / len(vals) if vals else math.nan
+
+    print("\n## final map at the estimated poses (mean PSNR dB per frame)\n")
+    print("| frames | n | whole image | with depth | without depth | depth-masked | + affine brightness (with depth) |")
+    print("|---|---|---|---|---|---|---|")
+    for name, rows in (("keyframes", stats["kf"]), ("between keyframes", stats["between"]),
+                       ("all", stats["kf"] + stats["between"])):
+        if rows:
+            print(f"| {name} | {len(rows)} | {mean(rows, 0):.2f} | {mean(rows, 1):.2f} | {mean(rows, 2):.2f} | "
+                  f"{mean(rows, 3):.2f} | +{mean(rows, 4):.2f} |")
+
+    all_rows = stats["kf"] + stats["between"]
+    own_dep = sum(r[3] for r in kf_rows) / len(kf_rows)
+    curve_gain = curve[-1][2] - next((c[2] for c in curve if c[0] >= cfg.slam.mapping_iters), curve[0][2])
+    print("\n## each cause's dB (the whole-image PSNR of all frames is the starting point)\n")
+    print("| cause | dB | read as |")
+    print("|---|---|---|")
+    print(f"| pixels without depth | {mean(all_rows, 1) - mean(all_rows, 0):+.2f} | "
+          "with-depth PSNR minus whole-image |")
+    print(f"| protocol (SplaTAM's depth mask) | {mean(all_rows, 3) - mean(all_rows, 0):+.2f} | "
+          "masked whole-image PSNR minus whole-image |")
+    print(f"| frames between keyframes | {mean(stats['between'], 1) - mean(stats['kf'], 1):+.2f} | "
+          "with depth, between minus keyframes (final map) |")
+    print(f"| later mapping (keyframes revisited) | {mean(stats['kf'], 1) - own_dep:+.2f} | "
+          "with depth, keyframes in the final map minus right after their own mapping |")
+    print(f"| iterations (keyframe 0 to {curve_at[-1]}) | {curve_gain:+.2f} | with depth, at {curve_at[-1]} "
+          f"iterations minus at the preset's {cfg.slam.mapping_iters} |")
+    print(f"| exposure (affine per frame) | {mean(all_rows, 4):+.2f} | with depth, best affine brightness |")
+
+
+if __name__ == "__main__":
+    main()
