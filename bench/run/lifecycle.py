@@ -27,7 +27,6 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from bench import schema
-from bench.run import job_outputs
 from bench.cli.validate import ValidatedRun, validate
 from bench.conf import config_files
 from bench.config.compose import RunConfig
@@ -37,7 +36,7 @@ from bench.datasets import FrameSequence
 from bench.errors import BenchError, ConfigError
 from bench.report.figures.pruned_run import PruneViz
 from bench.run import checkpoint as ckpt
-from bench.run import evaluation, loop, provenance
+from bench.run import evaluation, job_outputs, loop, provenance
 from bench.run.determinism import repeatable
 from bench.run.loop import TRAJ_EST, flushed_rows
 from bench.run.record import RunRecord, is_leftover, owner, promote, read_record, record_refusal, write_text
