@@ -229,7 +229,7 @@ def check_sizes(seq: SevenScenesSequence) -> None:
 
 
 def open_sequence(cfg: SevenScenesConfig | Mapping[str, Any]) -> Sequence:
-    """Open 7-Scenes sequence ``cfg.seq`` (folder name, or 'seq-01' by its number; every setting: ``SevenScenesConfig``)."""
+    """Open 7-Scenes sequence ``cfg.seq`` (a folder, or 'seq-NN' by its number; settings: ``SevenScenesConfig``)."""
     cfg = as_config(SevenScenesConfig, cfg)
     requested = cfg.default_sequence()
     root = realio.resolve_root(DATASET, cfg.root)
