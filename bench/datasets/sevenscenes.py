@@ -25,7 +25,8 @@ import numpy as np
 import torch
 
 from bench.datasets import _realio as realio
-from bench.datasets.base import RecordedConfig, Sequence, TimedSequence
+from bench.datasets.base import RecordedConfig, Sequence
+from bench.datasets.tum import TumSequence
 from bench.errors import DatasetError
 from bench.typed import as_config, setting
 
@@ -148,32 +149,9 @@ def list_frames(seq_dir: Path) -> tuple[list[int], list[Path], list[Path], list[
             [found[n]["pose"] for n in numbers])
 
 
-class SevenScenesSequence(TimedSequence):
-    """Colour + 16-bit depth frames of one 7-Scenes sequence, read lazily."""
-
-    def __init__(
-        self,
-        *,
-        name: str,
-        rgb_paths: list[Path],
-        depth_paths: list[Path],
-        timestamps_s: np.ndarray,  # [N]
-        gt_c2w: np.ndarray,  # [N, 4, 4]
-        K_full: np.ndarray,  # [3, 3] at full resolution
-        full_size: tuple[int, int],  # (width, height) of the first frame
-        downscale: int,
-        depth_scale: float,
-        max_depth_m: float | None,
-    ) -> None:
-        super().__init__(name, timestamps_s, gt_c2w)
-        self.rgb_paths = rgb_paths
-        self.depth_paths = depth_paths
-        self.full_width, self.full_height = full_size
-        self.downscale = downscale
-        self.depth_scale = depth_scale
-        self.max_depth_m = max_depth_m
-        self.width, self.height = realio.downscaled_size(*full_size, downscale)
-        self.K = torch.from_numpy(realio.scale_K(K_full, downscale)).float()
+class SevenScenesSequence(TumSequence):
+    """Colour + 16-bit depth frames of one 7-Scenes sequence, read lazily (TumSequence's paths, K and scaling;
+    7-Scenes' millimetres with 65535 as no reading, and sizes checked against the first frame)."""
 
     def _check_size(self, img: np.ndarray, path: Path, what: str) -> None:
         if img.shape[:2] != (self.full_height, self.full_width):
