@@ -97,7 +97,8 @@ SETTING_CASES: dict[str, Case] = {
     "memory-not-bool": Case(["memory.torch_live=maybe"], ["memory.torch_live: expected true or false", "'maybe'"]),
     "unknown-top-key": Case(["+nonsense=1"], ["unknown setting 'nonsense'", "expected one of"]),
     "unknown-key-no-plus": Case(["eval.nonsense=1"], ["eval: expected a setting among every", "found nonsense"]),
-    "unknown-dataset": Case(["dataset=nope"], ["unknown dataset 'nope'", "available: euroc, kitti, synthetic, tum"]),
+    "unknown-dataset": Case(["dataset=nope"],
+                            ["unknown dataset 'nope'", "available: euroc, kitti, sevenscenes, synthetic, tum"]),
     "unknown-strategy": Case(["+strategy=pockt"], ["unknown strategy 'pockt'; did you mean 'pocket'?"]),
     "strategy-param-no-plus": Case(["+strategy=pocket", "strategy.params.nonsense=1"],
                                    ["strategy.params: expected a setting among", "budget_min", "found nonsense"]),
@@ -175,8 +176,8 @@ def test_sweep_records_a_job_that_cannot_be_composed(tmp_path: Path) -> None:
     res = run_cli(["--multirun", "dataset=nope,nope2", f"hydra.sweep.dir={tmp_path}"])
     assert res.code == 0, res.stderr
     errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error:")]
-    assert errors == ["error: unknown dataset 'nope'; available: euroc, kitti, synthetic, tum",
-                      "error: unknown dataset 'nope2'; available: euroc, kitti, synthetic, tum"]
+    assert errors == ["error: unknown dataset 'nope'; available: euroc, kitti, sevenscenes, synthetic, tum",
+                      "error: unknown dataset 'nope2'; available: euroc, kitti, sevenscenes, synthetic, tum"]
     for name in ("nope", "nope2"):
         rec = json.loads((tmp_path / f"dataset={name}" / "metrics.json").read_text())
         assert rec["status"] == "failed" and rec["error"] == errors[0 if name == "nope" else 1][7:]
@@ -320,7 +321,7 @@ def test_bad_data_file_fails_before_any_work(name: str, tmp_path: Path, request:
 @pytest.mark.parametrize(("dataset", "given", "canonical"), [
     ("kitti", "6", "06"), ("kitti", "06", "06"), ("euroc", "V101", "V1_01_easy"), ("euroc", "v1_01", "V1_01_easy"),
     ("euroc", "V1_01_easy", "V1_01_easy"), ("tum", "fr1_desk", "rgbd_dataset_freiburg1_desk"),
-    ("synthetic", "007", "7"),
+    ("synthetic", "007", "7"), ("sevenscenes", "1", "seq-01"), ("sevenscenes", "seq-01", "seq-01"),
 ])
 def test_one_sequence_one_name(dataset: str, given: str, canonical: str) -> None:
     from bench.config.identity import run_keys

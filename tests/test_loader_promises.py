@@ -45,6 +45,7 @@ KITTI = "sequences/06"
 EUROC_CAM = "V1_01_micro/mav0/cam0/data.csv"
 EUROC_GT = "V1_01_micro/mav0/state_groundtruth_estimate0/data.csv"
 TUM = "rgbd_dataset_freiburg1_test"
+SEVEN = "seq/frame-000002.pose.txt"
 
 # name: (dataset, file under the root, edit of its lines, part of the error line)
 CASES: dict[str, tuple[str, str, Callable[[list[str]], None], str]] = {
@@ -67,7 +68,22 @@ CASES: dict[str, tuple[str, str, Callable[[list[str]], None], str]] = {
     "tum-rgb-duplicate": ("tum", f"{TUM}/rgb.txt", _repeat(2), "duplicate of line 3"),
     "tum-depth-unsorted": ("tum", f"{TUM}/depth.txt", _swap(2, 3), "expected strictly increasing"),
     "tum-rgb-nan": ("tum", f"{TUM}/rgb.txt", _field(2, 0, "nan"), "expected finite numbers"),
+    "sevenscenes-pose-nan": ("sevenscenes", SEVEN, _field(1, 3, "nan"), "expected finite numbers"),
+    "sevenscenes-pose-text": ("sevenscenes", SEVEN, _field(1, 3, "x"), "expected 16 numbers (a 4x4 matrix)"),
+    "sevenscenes-pose-short": ("sevenscenes", SEVEN, lambda lines: lines.pop(), "found 12"),
+    "sevenscenes-pose-scaled": ("sevenscenes", SEVEN, _field(0, 0, "2.0"), "expected a rigid transform"),
 }
+
+
+def _sevenscenes_copy(shared: Path, tmp_path: Path, n_frames: int = 3) -> Path:
+    """A root in tmp_path whose ``seq/`` links the first frames of the shared 7-Scenes sequence."""
+    src = shared / "data" / "sevenscenes" / "seq"
+    seq = tmp_path / "sevenscenes" / "seq"
+    seq.mkdir(parents=True)
+    for n in range(n_frames):
+        for suffix in ("color.jpg", "depth.png", "pose.txt"):
+            (seq / f"frame-{n:06d}.{suffix}").symlink_to(src / f"frame-{n:06d}.{suffix}")
+    return tmp_path / "sevenscenes"
 
 
 def _root(dataset: str, tmp_path: Path, request: pytest.FixtureRequest) -> tuple[Path, str]:
@@ -75,6 +91,8 @@ def _root(dataset: str, tmp_path: Path, request: pytest.FixtureRequest) -> tuple
         return _tum_copy(tmp_path), "fr1_test"
     if dataset == "kitti":
         return request.getfixturevalue("make_kitti_copy")(), "06"
+    if dataset == "sevenscenes":
+        return _sevenscenes_copy(request.getfixturevalue("shared"), tmp_path), "seq"
     return request.getfixturevalue("euroc_copy"), "V1_01_micro"
 
 
@@ -94,7 +112,7 @@ def _own_copy(root: Path, path: Path) -> Path:
 
 def _open(dataset: str, root: Path, seq: str) -> None:
     overrides = [f"dataset={dataset}", f"seq={seq}", f"dataset.root={root}"]
-    overrides += [] if dataset == "tum" else ["dataset.cache_dir=null"]
+    overrides += [] if dataset in ("tum", "sevenscenes") else ["dataset.cache_dir=null"]
     open_seq(to_run_config(cli.compose(overrides)))
 
 
@@ -112,9 +130,9 @@ def test_a_loader_refuses_what_the_docs_say_it_refuses(name: str, tmp_path: Path
     assert says in message and "\n" not in message, message
 
 
-@pytest.mark.parametrize("dataset", ["kitti", "euroc", "tum"])
+@pytest.mark.parametrize("dataset", ["kitti", "euroc", "tum", "sevenscenes"])
 def test_a_missing_root_is_refused(dataset: str, tmp_path: Path) -> None:
-    seq = {"kitti": "06", "euroc": "V1_01_micro", "tum": "fr1_test"}[dataset]
+    seq = {"kitti": "06", "euroc": "V1_01_micro", "tum": "fr1_test", "sevenscenes": "seq"}[dataset]
     with pytest.raises(DatasetError, match="not found|missing|expected"):
         _open(dataset, tmp_path / "nowhere", seq)
 
