@@ -5,10 +5,16 @@ import from here only (``tests/test_imports.py`` holds them to it), so ``bench.s
 its layout without breaking a plugin. What each name means: ``bench/slam/strategy.py`` (the hooks and
 their contexts), ``bench/slam/gaussians.py`` (the map a context carries), ``bench/slam/raster.py``
 (the render statistics).
+
+A hyperparameter's rule sits on its field: ``budget_min: int = setting(5, "int", lo=0)`` (kinds int,
+float, bool, str; ``lo``/``hi`` with ``lo_open``/``hi_open``, ``choices``, ``nullable``); the base
+``Strategy.__post_init__`` checks them all as the strategy is built. ``check`` is for a rule between
+two fields; ``check_choice`` and ``is_int`` stay for plugins written before ``setting``.
 """
 
 from __future__ import annotations
 
+from bench.config.settings import setting
 from bench.errors import ConfigError, StrategyError
 from bench.slam.gaussians import GaussianMap, ParamSpec
 from bench.slam.raster import TILE_PX, RasterOutput
@@ -39,5 +45,6 @@ __all__ = [
     "check",
     "check_choice",
     "is_int",
+    "setting",
     "top_k_keep",
 ]

@@ -59,7 +59,7 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
     Field("track_s", "s", "tracking time of the keyframe's frame"),
     Field("map_s", "s", "mapping time"),
     Field("prune_s", "s", "pruning time"),
-    # the headline peak split into parts (bench/run/lifecycle.py:memory_parts); mem_state + mem_keyframes + mem_other +
+    # the headline peak split into parts (bench/run/loop.py:memory_parts); mem_state + mem_keyframes + mem_other +
     # mem_work = the peak column (cuda_alloc_peak_mib on CUDA, torch_live_peak_mib on CPU), to rounding
     Field("mem_state_mib", "MiB", "Gaussian state at its largest in the window (after densification, during "
           "mapping): params, a gradient per param, Adam moments, strategy state; exact bytes"),
@@ -82,7 +82,7 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
     Field("n_reseeded_holes", "", "Gaussians this keyframe seeded in pixels the prunes since the previous "
           "keyframe opened (their surface points, from the observed depth, projected into this view)"),
     Field("diag_s", "s", "time spent on the pruning diagnostics above (included in `prune_s`)"),
-    # how well mapping fitted the keyframe it just mapped (bench/slam/system.py:_fit_diagnostics)
+    # how well mapping fitted the keyframe it just mapped (bench/slam/prune_diagnostics.py:_fit_diagnostics)
     Field("kf_psnr_db", "dB", "the keyframe's own render right after its mapping, before pruning: PSNR, whole image"),
     Field("kf_psnr_depth_db", "dB", "... PSNR over the pixels with observed depth (those a map can seed)"),
     Field("kf_psnr_nodepth_db", "dB", "... PSNR over the pixels without depth (sky, no disparity); null if none"),

@@ -3,7 +3,7 @@
 What a checkpoint costs grows with the map (parameters, Adam moments, per-Gaussian state: the
 keyframe store is saved by index, poses are 64 B a frame), so this builds a SLAM system in the state
 a long drive reaches, N Gaussians with Adam moments, K keyframes, F tracked frames and F / K rows
-of keyframes.csv, and times ``bench.run.lifecycle.write_checkpoint`` on it, the same call the frame loop makes.
+of keyframes.csv, and times ``bench.run.loop.write_checkpoint`` on it, the same call the frame loop makes.
 The figure to compare with is a keyframe's own time (``map_s`` in keyframes.csv, seconds).
 
     python profiling/checkpoint_cost.py                        # N = 10k, 30k, 100k, 300k; 400 frames
@@ -24,10 +24,14 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench import schema  # noqa: E402
 from bench.config.compose import RunConfig  # noqa: E402
-from bench.measure.memory import MemoryProbe, PhaseTimer  # noqa: E402
-from bench.run.lifecycle import Drive, Parts, write_checkpoint  # noqa: E402
+from bench.measure.memory import MemoryProbe
+from bench.measure.timing import PhaseTimer  # noqa: E402
+from bench.run.loop import LoopOutcome, write_checkpoint  # noqa: E402
+from bench.run.setup import RunSetup  # noqa: E402
+from bench.slam.config import SlamConfig  # noqa: E402
+from bench.slam.keyframes import Keyframe  # noqa: E402
 from bench.slam.strategy import CheckedStrategy, load_strategy  # noqa: E402
-from bench.slam.system import SlamConfig, System, _Keyframe  # noqa: E402
+from bench.slam.system import System  # noqa: E402
 
 
 def long_drive_system(n: int, keyframes: int, frames: int, hw: tuple[int, int] = (192, 320)) -> System:
@@ -45,7 +49,7 @@ def long_drive_system(n: int, keyframes: int, frames: int, hw: tuple[int, int] =
     system.map.optimizer.step()  # the Adam moments a mapping step leaves
     system.map.optimizer.zero_grad(set_to_none=True)
     rgb, depth = torch.zeros(h, w, 3), torch.zeros(h, w)
-    system.keyframes = [_Keyframe(i * frames // keyframes, rgb, depth, torch.eye(4)) for i in range(keyframes)]
+    system.keyframes = [Keyframe(i * frames // keyframes, rgb, depth, torch.eye(4)) for i in range(keyframes)]
     system.poses = [torch.eye(4) for _ in range(frames)]
     return system
 
@@ -53,10 +57,11 @@ def long_drive_system(n: int, keyframes: int, frames: int, hw: tuple[int, int] =
 def cost(n: int, keyframes: int, frames: int, repeats: int) -> tuple[float, float]:
     """(MiB, median seconds) of one checkpoint."""
     system = long_drive_system(n, keyframes, frames)
-    parts = Parts(None, frames, system.strategy, system, PhaseTimer(), MemoryProbe(torch.device("cpu")))
+    parts = RunSetup(None, frames, system.strategy, system, PhaseTimer(), MemoryProbe(torch.device("cpu")))
     row = dict.fromkeys(schema.KEYFRAME_COLUMNS, 0.0)
-    drive = Drive(timestamps_s=[0.1 * i for i in range(frames)], gt_c2w=[torch.eye(4, dtype=torch.float64)] * frames,
-                  windows=[{**row, "kf": i} for i in range(keyframes)])  # fmt: skip
+    drive = LoopOutcome(timestamps_s=[0.1 * i for i in range(frames)],
+                        gt_c2w=[torch.eye(4, dtype=torch.float64)] * frames,
+                        windows=[{**row, "kf": i} for i in range(keyframes)])
     code = {"git_commit": "0" * 40, "git_dirty": False}
     record = {"run": {"config_hash": "0" * 16, "code_version": code, "inputs": {}},
               "checkpoint": {"every": 1, "written": 0, "mib_last": None, "write_s_total": 0.0,

@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.cli.entry import compose  # noqa: E402
 from bench.config.compose import to_run_config  # noqa: E402
 from bench.run.determinism import repeatable  # noqa: E402
-from bench.run.lifecycle import open_seq  # noqa: E402
+from bench.run.setup import open_seq  # noqa: E402
 from bench.slam.strategy import load_strategy  # noqa: E402
 from bench.slam.system import System  # noqa: E402
 
@@ -66,7 +66,7 @@ def main(overrides: list[str]) -> None:
         system = System(slam, seq.K, seq.height, seq.width, load_strategy("none", None), cfg.prune,
                         torch.device("cpu"))
         for i in range(len(seq)):
-            system.process(seq[i])
+            system.step(seq[i])
 
 
 if __name__ == "__main__":

@@ -66,7 +66,7 @@ def main() -> None:
     from bench.cli.entry import compose
     from bench.cli.validate import validate
     from bench.run.determinism import repeatable
-    from bench.run.lifecycle import open_seq
+    from bench.run.setup import open_seq
     from bench.slam.system import System
 
     overrides = [*shlex.split(DEFAULT), *shlex.split(args.overrides)]
@@ -104,7 +104,7 @@ def main() -> None:
 
         system.map.optimizer.step = counted_step
         t0 = time.perf_counter()
-        system.process(frame0)
+        system.step(frame0)
 
     # the run itself
     with repeatable(cfg.seed, cfg.threads, cfg.determinism, device):
@@ -113,7 +113,7 @@ def main() -> None:
         t0 = time.perf_counter()
         for i in range(n):
             frame = seq[i]
-            res = system.process(frame)
+            res = system.step(frame)
             if res.is_keyframe:
                 d = res.diag
                 masked = d["kf_psnr_depth_db"] - 10 * math.log10(d["kf_depth_frac"]) if d["kf_depth_frac"] else math.nan

@@ -27,7 +27,7 @@ def main() -> None:
     from bench.cli.validate import validate
     from bench.metrics.image import region_psnr_db
     from bench.run.determinism import repeatable
-    from bench.run.lifecycle import open_seq
+    from bench.run.setup import open_seq
     from bench.slam.raster import rasterize
     from bench.slam.se3 import inverse
     from bench.slam.system import System
@@ -60,7 +60,7 @@ def main() -> None:
         print("|---|---|---|---|---|---|")
         snap = None
         for k, frame in enumerate(frames):
-            r = s.process(frame)
+            r = s.step(frame)
             if not r.is_keyframe:
                 continue
             now = {name: p.detach() for name, p in s.map.params.items()}

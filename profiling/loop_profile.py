@@ -85,7 +85,7 @@ class Profile:
     """Patches the loop's functions with timers; ``phase`` is the phase the loop is in."""
 
     def __init__(self) -> None:
-        from bench.run import lifecycle as run_mod
+        from bench.run import evaluation as run_mod
         from bench.slam import raster, raster_fused, system
 
         self.clock = Clock()
@@ -111,7 +111,7 @@ class Profile:
         for name, phase in (("_track", "tracking"), ("_map", "mapping"), ("_densify", "densification"),
                             ("_prune", "pruning"), ("refine", "refine")):
             phased(name, phase)
-        orig_eval = run_mod._evaluate
+        orig_eval = run_mod.evaluate
 
         def evaluate(*a, **k):
             prev, pc.phase = pc.phase, "evaluation"
@@ -121,7 +121,7 @@ class Profile:
             finally:
                 pc.phase = prev
 
-        run_mod._evaluate = evaluate
+        run_mod.evaluate = evaluate
 
         def lab(part):
             return lambda: f"{pc.phase}:{part}"

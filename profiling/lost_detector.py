@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.cli.entry import compose  # noqa: E402
 from bench.config.compose import to_run_config  # noqa: E402
 from bench.run.determinism import repeatable  # noqa: E402
-from bench.run.lifecycle import open_seq  # noqa: E402
+from bench.run.setup import open_seq  # noqa: E402
 from bench.slam.se3 import inverse  # noqa: E402
 from bench.slam.strategy import load_strategy  # noqa: E402
 from bench.slam.system import System  # noqa: E402
@@ -54,10 +54,10 @@ def main(overrides: list[str], out_csv: Path | None = None, kick_every: int = 25
         for i in range(min(len(seq), cfg.max_frames) if cfg.max_frames else len(seq)):
             frame = seq[i]
             kicked = None
-            depth_threshold = system.depth_lost_threshold_m()  # what this frame is judged against
+            depth_threshold = system.lost.depth_threshold_m()  # what this frame is judged against
             if i >= 2 and i % kick_every == 0:  # before the real frame: same map, same previous poses
                 kicked = kick_residual(system, frame)
-            system.process(frame)
+            system.step(frame)
             gt = frame.gt_c2w.numpy()
             gt0 = gt if gt0 is None else gt0
             est_c2w = inverse(system.poses[-1].double()).numpy()
@@ -87,7 +87,7 @@ def kick_residual(system: System, frame) -> tuple[float, float, float]:
     ``frame`` from the usual start moved sideways by KICK_M; the system's state is left as it was."""
     state = (list(system.poses), list(system.init_source), system._prev_obs, len(system.track_log),
              system._ransac_rng.bit_generator.state, {k: v.clone() for k, v in system.map.state.items()},
-             list(system._depth_recent), system._bad_frames)
+             list(system.lost.depth_recent), system.lost.bad_frames)
     rgb, depth = frame.rgb, frame.depth_m
     depth = torch.where((depth > 0) & (depth < system.cfg.max_depth_m), depth, torch.zeros_like(depth))
     system._gray = None  # the plain constant-velocity start: no front-end to pull it back
@@ -101,7 +101,7 @@ def kick_residual(system: System, frame) -> tuple[float, float, float]:
     del system.track_log[state[3]:]
     system._ransac_rng.bit_generator.state = state[4]
     system.map.state.update(state[5])  # the tracking-gradient accumulators the kicked frame added to
-    system._depth_recent, system._bad_frames = state[6], state[7]  # the depth check's baseline and count
+    system.lost.depth_recent, system.lost.bad_frames = state[6], state[7]  # the depth check's baseline and count
     return residual, moved, depth_residual
 
 

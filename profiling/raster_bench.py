@@ -62,8 +62,12 @@ def scene(n: int, width: int, height: int, device: torch.device, seed: int = 0, 
 
 def old_kernels(rev: str):
     """bench/slam/raster_fused.py as of ``rev``, as a module of its own (numba caches it beside the copy)."""
-    src = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:bench/slam/raster_fused.py"],
-                         capture_output=True, text=True, check=True).stdout
+    shown = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:bench/slam/raster_fused.py"],
+                           capture_output=True, text=True)
+    if shown.returncode != 0:
+        sys.exit(f"--old {rev}: expected the kernels as one file, bench/slam/raster_fused.py, found none at {rev} "
+                 "(the package bench/slam/raster_fused/ cannot be loaded beside today's)")
+    src = shown.stdout
     folder = Path.home() / ".cache" / "pocketbench" / "old_kernels"
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"raster_fused_{hashlib.sha256(src.encode()).hexdigest()[:12]}.py"

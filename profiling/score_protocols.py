@@ -32,8 +32,9 @@ def score_run(run_dir: Path, protocols: tuple[str, ...] = PROTOCOLS) -> list[dic
     from bench.cli.validate import validate
     from bench.metrics.protocol import frame_metrics, mean_metrics, protocol_mask
     from bench.metrics.trajectory import read_tum
+    from bench.run.evaluation import eval_depth_range
     from bench.run.export import MAP_FILE, read_ply
-    from bench.run.lifecycle import _eval_depth_range, open_seq
+    from bench.run.setup import open_seq
     from bench.slam.raster import rasterize
 
     built = validate(OmegaConf.load(run_dir / "config.yaml"))
@@ -47,7 +48,7 @@ def score_run(run_dir: Path, protocols: tuple[str, ...] = PROTOCOLS) -> list[dic
     for i, (p, q) in enumerate(zip(est.positions_m, est.quat_wxyz, strict=True)):
         c2w[i] = quaternion_matrix(q)
         c2w[i, :3, 3] = p
-    near, far = _eval_depth_range(cfg.dataset)  # the dataset's range, as the run's own evaluation reads it
+    near, far = eval_depth_range(cfg.dataset)  # the dataset's range, as the run's own evaluation reads it
     frames: dict[str, list] = {p: [] for p in protocols}
     with torch.no_grad():
         for i in range(0, len(est), max(1, cfg.eval.every)):

@@ -7,7 +7,7 @@ from typing import ClassVar
 
 import torch
 
-from bench.api import PruneContext, Strategy, check_choice, top_k_keep
+from bench.api import PruneContext, Strategy, setting, top_k_keep
 from strategies._area import AREA_MODES, area_score
 
 
@@ -21,10 +21,7 @@ class AreaPruning(Strategy):
 
     description: ClassVar[str] = "rendering-area score, one global budget (pocket without tile budget)"
 
-    area: str = "exact"  # C_i: exact | analytic | radius (as in pocket)
-
-    def __post_init__(self) -> None:
-        check_choice("area", "area", self.area, AREA_MODES)
+    area: str = setting("exact", "str", choices=AREA_MODES)  # C_i: exact | analytic | radius (as in pocket)
 
     def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
         score = area_score(ctx.raster, ctx.gaussians.opacities, self.area)  # [N]

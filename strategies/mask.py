@@ -31,9 +31,7 @@ from bench.api import (
     ParamSpec,
     PruneContext,
     Strategy,
-    check,
-    check_choice,
-    is_int,
+    setting,
     top_k_keep,
 )
 
@@ -49,23 +47,21 @@ class MaskPruning(Strategy):
 
     description: ClassVar[str] = "MaskGaussian: masks at the shared ratio ranked by learned logits, deferred deletion"
 
-    select: str = "ratio"  # ratio: mask (1 - keep_ratio) of the candidates by logit | learned: sigmoid(l) <= 0.5
+    # ratio: mask (1 - keep_ratio) of the candidates by logit | learned: sigmoid(l) <= 0.5
+    select: str = setting("ratio", "str", choices=SELECT_MODES)
 
-    gumbel_tau: float = 1.0  # Gumbel-softmax temperature (MaskGaussian uses torch's default, 1)
-    sparsity_weight: float = 5e-4  # lambda_m on mean keep probability (MaskGaussian's lambda_mask)
-    mask_lr: float = 0.01  # Adam step on the logits (MaskGaussian's mask_lr)
+    # Gumbel-softmax temperature (MaskGaussian uses torch's default, 1)
+    gumbel_tau: float = setting(1.0, "float", lo=0.0, lo_open=True)
+    # lambda_m on mean keep probability (MaskGaussian's lambda_mask)
+    sparsity_weight: float = setting(5e-4, "float", lo=0.0)
+    mask_lr: float = setting(0.01, "float", lo=0.0, lo_open=True)  # Adam step on the logits (MaskGaussian's mask_lr)
     init_keep_logit: float = 9.0  # log-odds of keep for new Gaussians (MaskGaussian's [10, 1] init)
-    masked_keyframes: int = 5  # M: delete once masked at this many consecutive keyframes (pocketbench choice)
-    seed: int = 0  # seeds the Gumbel noise, so runs are reproducible
+    # M: delete once masked at this many consecutive keyframes (pocketbench choice)
+    masked_keyframes: int = setting(5, "int", lo=1)
+    seed: int = setting(0, "int")  # seeds the Gumbel noise, so runs are reproducible
 
     def __post_init__(self) -> None:
-        check("mask", self.gumbel_tau > 0, f"gumbel_tau: expected > 0, found {self.gumbel_tau!r}")
-        check("mask", self.sparsity_weight >= 0, f"sparsity_weight: expected >= 0, found {self.sparsity_weight!r}")
-        check("mask", self.mask_lr > 0, f"mask_lr: expected > 0, found {self.mask_lr!r}")
-        check("mask", is_int(self.masked_keyframes) and self.masked_keyframes >= 1,
-              f"masked_keyframes: expected an integer >= 1, found {self.masked_keyframes!r}")
-        check("mask", is_int(self.seed), f"seed: expected an integer, found {self.seed!r}")
-        check_choice("mask", "select", self.select, SELECT_MODES)
+        super().__post_init__()  # each field's own rule
         self._generators: dict[torch.device, torch.Generator] = {}  # not a field: runtime state, one per device
 
     # ------------------------------------------------------------------ contract

@@ -16,7 +16,7 @@ from typing import ClassVar
 
 import torch
 
-from bench.api import PruneContext, Strategy, StrategyError, check, top_k_keep
+from bench.api import PruneContext, Strategy, StrategyError, setting, top_k_keep
 
 STATE_SIGNIFICANCE = "opacity_significance"  # [N] sum over observing views of o_i * hit_count_i
 STATE_VIEWS = "opacity_views"  # [N] views (prune calls) in which the Gaussian hit at least one pixel
@@ -40,16 +40,10 @@ class OpacityPruning(Strategy):
 
     description: ClassVar[str] = "LightGaussian: opacity x hit count per observing view x volume^0.1"
 
-    use_volume: bool = True  # multiply by the normalised volume factor gamma(V)
-    volume_power: float = 0.1  # beta in gamma(V) = min(V / V_90, 1)^beta
-    volume_quantile: float = 0.9  # V_90: volumes are normalised by this quantile of the map's volumes
-
-    def __post_init__(self) -> None:
-        name = "opacity"
-        check(name, isinstance(self.use_volume, bool), f"use_volume: expected true or false, found {self.use_volume!r}")
-        check(name, self.volume_power >= 0, f"volume_power: expected >= 0, found {self.volume_power!r}")
-        check(name, 0 < self.volume_quantile <= 1,
-              f"volume_quantile: expected a value in (0, 1], found {self.volume_quantile!r}")
+    use_volume: bool = setting(True, "bool")  # multiply by the normalised volume factor gamma(V)
+    volume_power: float = setting(0.1, "float", lo=0.0)  # beta in gamma(V) = min(V / V_90, 1)^beta
+    # V_90: volumes are normalised by this quantile of the map's volumes
+    volume_quantile: float = setting(0.9, "float", lo=0.0, hi=1.0, lo_open=True)
 
     def state_spec(self) -> dict[str, torch.dtype]:
         return {STATE_SIGNIFICANCE: torch.float32, STATE_VIEWS: torch.float32}

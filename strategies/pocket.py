@@ -15,7 +15,7 @@ from typing import ClassVar
 
 import torch
 
-from bench.api import TILE_PX, PruneContext, Strategy, StrategyError, check, check_choice, is_int
+from bench.api import TILE_PX, PruneContext, Strategy, StrategyError, check, setting
 from strategies._area import AREA_MODES, area_score
 
 BUDGET_ROUNDINGS: tuple[str, ...] = ("ceil", "floor")
@@ -83,28 +83,23 @@ class PocketPruning(Strategy):
 
     description: ClassVar[str] = "Pocket-SLAM: rendering-area score, per-tile budgets from tracking gradients"
 
-    tile_px: int = 16  # tile side in pixels; must equal the rasterizer's tile (16)
-    budget_min: int = 5  # B_min: every occupied tile keeps at least this many
-    budget_max: int = 200  # B_max: no tile keeps more than this many
-    area: str = "exact"  # C_i: exact | analytic | radius
-    budget_round: str = "ceil"  # B_k rounding: ceil | floor
+    # tile side in pixels; must equal the rasterizer's tile
+    tile_px: int = setting(TILE_PX, "int", lo=TILE_PX, hi=TILE_PX, hint=f"the rasterizer's tile size {TILE_PX}")
+    budget_min: int = setting(5, "int", lo=0)  # B_min: every occupied tile keeps at least this many
+    budget_max: int = setting(200, "int", lo=1)  # B_max: no tile keeps more than this many
+    area: str = setting("exact", "str", choices=AREA_MODES)  # C_i: exact | analytic | radius
+    budget_round: str = setting("ceil", "str", choices=BUDGET_ROUNDINGS)  # B_k rounding: ceil | floor
     # which tile a Gaussian belongs to: "center" = the tile of its projected centre (the paper);
     # "zero" = tile (0, 0) for every rendered Gaussian, as in the released code, whose tile lookup
     # reads a zero-filled means2D placeholder. There the one occupied tile gets min(N_tar, B_max), so
     # each prune keeps the B_max rendered older Gaussians of largest area. Only for +experiment=released.
-    tile_source: str = "center"
+    tile_source: str = setting("center", "str", choices=TILE_SOURCES)
 
     def __post_init__(self) -> None:
-        name = "pocket"
-        check(name, self.tile_px == TILE_PX,
-              f"tile_px: expected the rasterizer's tile size {TILE_PX}, found {self.tile_px!r}")
-        check(name, is_int(self.budget_min) and self.budget_min >= 0,
-              f"budget_min: expected an integer >= 0, found {self.budget_min!r}")
-        check(name, is_int(self.budget_max) and self.budget_max >= max(self.budget_min, 1),
+        super().__post_init__()  # each field's own rule
+        # the one rule between two fields
+        check("pocket", self.budget_max >= self.budget_min,
               f"budget_max: expected an integer >= budget_min ({self.budget_min}) and >= 1, found {self.budget_max!r}")
-        check_choice(name, "area", self.area, AREA_MODES)
-        check_choice(name, "budget_round", self.budget_round, BUDGET_ROUNDINGS)
-        check_choice(name, "tile_source", self.tile_source, TILE_SOURCES)
 
     def budgets(self, ctx: PruneContext) -> tuple[torch.Tensor, torch.Tensor]:
         """(B_k [T], n_k [T]) for this keyframe's tile grid."""

@@ -106,12 +106,12 @@ SETTING_CASES: dict[str, Case] = {
     "strategy-param-type": Case(["+strategy=pocket", "strategy.params.budget_min=abc"],
                                 ["strategy 'pocket' parameter budget_min: expected an integer", "found 'abc'"]),
     "strategy-param-range": Case(["+strategy=mask", "strategy.params.gumbel_tau=0"],
-                                 ["strategy 'mask': gumbel_tau: expected > 0", "found 0"]),
+                                 ["strategy 'mask': gumbel_tau: expected a number > 0", "found 0"]),
     "strategy-param-choice": Case(["+strategy=area", "strategy.params.area=square"],
                                   ["strategy 'area': area: expected one of exact, analytic, radius", "'square'"]),
     "slam-type": Case(["slam.tracking_iters=abc"], ["slam.tracking_iters: expected an integer", "found 'abc'"]),
-    "slam-range": Case(["slam.kf_every=0"], ["slam.kf_every: expected >= 1", "found 0"]),
-    "slam-choice": Case(["slam.tracking_init=magic"], ["slam.tracking_init: expected 'velocity' or 'flow_pnp'"]),
+    "slam-range": Case(["slam.kf_every=0"], ["slam.kf_every: expected an integer >= 1", "found 0"]),
+    "slam-choice": Case(["slam.tracking_init=magic"], ["slam.tracking_init: expected one of velocity, flow_pnp"]),
     "slam-frontend-type": Case(["+slam.flow_pnp.min_inliers=abc"],
                                ["slam.flow_pnp.min_inliers: expected an integer", "found 'abc'"]),
     "dataset-size": Case(["dataset.width=8"], ["dataset.width: expected an integer >= 16", "found 8"]),
@@ -323,8 +323,8 @@ def test_bad_data_file_fails_before_any_work(name: str, tmp_path: Path, request:
     ("synthetic", "007", "7"),
 ])
 def test_one_sequence_one_name(dataset: str, given: str, canonical: str) -> None:
+    from bench.config.identity import run_keys
     from bench.datasets import canonical_seq
-    from bench.run.lifecycle import run_keys
 
     assert canonical_seq(dataset, given) == canonical
     assert run_keys(cli.compose([f"dataset={dataset}", f"seq={given}"]))["seq"] == canonical

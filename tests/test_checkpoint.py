@@ -1,8 +1,9 @@
 """Checkpoints and resume: a run SIGKILLed anywhere and rerun ends exactly as a run never stopped.
 
 The end-to-end cases are real ``python -m bench`` processes at ``+experiment=tiny`` size, one thread.
-A run stops itself at a known frame through the test-only ``POCKETBENCH_TEST_SIGNAL_AT`` (it fires
-only in a run that started at frame 0, so the resumed run goes through). Where the checkpoints are
+A run stops itself at a known frame through the test-only ``POCKETBENCH_TEST_SIGNAL_AT``, read by
+``tests/hooks/sitecustomize.py`` (it fires only in a run that started at frame 0, so the resumed run
+goes through). Where the checkpoints are
 is read from the uninterrupted run's ``keyframes.csv``, so the kill points do not depend on how many
 keyframes the tiny drive happens to make.
 """
@@ -24,9 +25,10 @@ from bench.errors import ConfigError
 from bench.run import checkpoint as ckpt
 from bench.run.checkpoint import CheckpointConfig
 from bench.run.determinism import VOLATILE_KEYFRAME_COLUMNS, VOLATILE_METRICS, repeatable_metrics
-from bench.run.lifecycle import TEST_SIGNAL_ENV
 
 REPO = Path(__file__).resolve().parents[1]
+HOOKS = Path(__file__).resolve().parent / "hooks"  # its sitecustomize sends the signal
+TEST_SIGNAL_ENV = "POCKETBENCH_TEST_SIGNAL_AT"
 EVERY = 2  # keyframes between checkpoints: leaves keyframes between two checkpoints to cut on resume
 TINY = ["+experiment=tiny", "threads=1", "eval.lpips=false", "progress=false", f"checkpoint.every={EVERY}"]
 
@@ -36,6 +38,7 @@ def bench(args: list[str], cwd: Path, signal_at: str | None = None) -> subproces
     env.pop(TEST_SIGNAL_ENV, None)
     if signal_at:
         env[TEST_SIGNAL_ENV] = signal_at
+        env["PYTHONPATH"] = os.pathsep.join((str(HOOKS), str(REPO)))
     return subprocess.run([sys.executable, "-m", "bench", *args], cwd=cwd, env=env, text=True, capture_output=True,
                           timeout=900)
 

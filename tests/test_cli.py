@@ -54,7 +54,7 @@ def test_final_refinement_is_specialised_per_dataset(overrides, refine_iters, tr
 @pytest.mark.parametrize("seq", ["00", "05", "10"])
 def test_seq_is_kept_as_written(seq):
     from bench.config.compose import to_run_config
-    from bench.run.lifecycle import run_keys
+    from bench.config.identity import run_keys
 
     cfg = to_run_config(compose_cfg("dataset=kitti", f"seq={seq}"))
     assert run_keys(cfg)["seq"].zfill(2) == seq

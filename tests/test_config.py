@@ -14,8 +14,8 @@ from bench.config.compose import RunConfig, dataset_schemas, to_run_config
 from bench.config.settings import as_config
 from bench.datasets.kitti import KittiConfig
 from bench.errors import ConfigError
+from bench.slam.config import SlamConfig
 from bench.slam.strategy import Strategy
-from bench.slam.system import SlamConfig
 
 
 def compose_cfg(*overrides: str):

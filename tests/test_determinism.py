@@ -20,10 +20,11 @@ from bench.datasets.synthetic import open_sequence
 from bench.errors import ConfigError
 from bench.run.determinism import VOLATILE_KEYFRAME_COLUMNS, repeatable, repeatable_metrics
 from bench.run.lifecycle import run
+from bench.slam.config import SlamConfig
 from bench.slam.frontend import FlowPnpConfig, relative_motion, to_gray_u8
 from bench.slam.raster import rasterize
 from bench.slam.strategy import Strategy
-from bench.slam.system import SlamConfig, System
+from bench.slam.system import System
 
 CPU = torch.device("cpu")
 SMALL = {"width": 96, "height": 64, "n_frames": 5, "supersample": 1}
@@ -160,7 +161,7 @@ def test_densification_offsets_follow_the_seed():
     def seeded_means(seed: int) -> torch.Tensor:
         cfg = SlamConfig(seed=seed, densify_stride=3, mapping_iters=0)
         system = System(cfg, seq.K, seq.height, seq.width, Strategy(), 0.4, CPU)
-        system.process(seq[0])  # the first keyframe seeds the map on the stride-3 grid
+        system.step(seq[0])  # the first keyframe seeds the map on the stride-3 grid
         return system.map.means.detach()
 
     assert torch.equal(seeded_means(0), seeded_means(0))

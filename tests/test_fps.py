@@ -27,32 +27,35 @@ import json, resource, sys
 import numba
 from bench.cli import entry as cli
 import bench.run.lifecycle as R
+import bench.run.loop as loop
 import bench.slam.raster_fused as rf
 from bench.slam.system import System
 
 def loaded():
-    return {k: len(v.overloads) for k, v in vars(rf).items() if isinstance(v, numba.core.registry.CPUDispatcher)}
+    kernels = {f"{m.__name__}.{k}": v for m in list(sys.modules.values()) if m.__name__.startswith(rf.__name__ + ".")
+               for k, v in vars(m).items() if isinstance(v, numba.core.registry.CPUDispatcher)}
+    return {k: len(v.overloads) for k, v in kernels.items()}
 
 def cpu_s():
     u = resource.getrusage(resource.RUSAGE_SELF)
     return u.ru_utime + u.ru_stime
 
 jobs = []
-process = System.process
+process = System.step
 def timed(self, frame):
     t0 = cpu_s()
     out = process(self, frame)
     if frame.index > 0:  # after the warm-up frame: what FPS is over
         jobs[-1]["cpu_s"] += cpu_s() - t0
     return out
-System.process = timed
-drive = R.drive_frames
+System.step = timed
+drive = loop.run_frames
 def watched(*args, **kwargs):
     jobs[-1]["before"] = loaded()
     result = drive(*args, **kwargs)
     jobs[-1]["after"] = loaded()
     return result
-R.drive_frames = watched
+loop.run_frames = watched
 for k in range(2):
     jobs.append({"cpu_s": 0.0})
     cfg = cli.compose(["+experiment=tiny", "+strategy=pocket", "dataset.n_frames=5", "slam.refine_iters=0",

@@ -10,7 +10,8 @@ import torch
 
 import bench.measure.memory as measure
 from bench.errors import ConfigError
-from bench.measure.memory import MemoryProbe, PhaseTimer
+from bench.measure.memory import MemoryProbe
+from bench.measure.timing import PhaseTimer
 from bench.slam.gaussians import tensor_bytes
 
 BIG_MIB = 200

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from bench.cli.entry import help_groups
+from bench.cli.help import help_groups
 from bench.conf import CONF_DIR
 from tests.conftest import make_venv
 

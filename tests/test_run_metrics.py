@@ -42,16 +42,16 @@ def test_peaks_count_the_frames_after_the_last_keyframe(tmp_path, monkeypatch):
 
     from bench.slam.system import System
 
-    process, big_mib = System.process, 64
+    step, big_mib = System.step, 64
 
-    def process_then_hold(self, frame):
-        res = process(self, frame)
+    def step_then_hold(self, frame):
+        res = step(self, frame)
         if frame.index == 5 and not res.is_keyframe:
             held = torch.ones(big_mib * 2**20 // 4)  # [n] float32, live for a moment, then freed
             del held
         return res
 
-    monkeypatch.setattr(System, "process", process_then_hold)
+    monkeypatch.setattr(System, "step", step_then_hold)
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = compose(config_name="config", overrides=[*TINY, "dataset.n_frames=6", "slam.kf_every=4",
                                                        "slam.refine_iters=0"])  # fmt: skip

@@ -21,7 +21,7 @@ from bench.slam.strategy import CheckedStrategy, PruneConfig, load_strategy, str
 
 
 @dataclass
-class Built:
+class ValidatedRun:
     """A validated run: its typed config, its resolved tree (what is hashed and stored), its parts."""
 
     config: RunConfig
@@ -30,7 +30,7 @@ class Built:
     lpips: Any = None  # bench.metrics.lpips.LPIPS from eval.lpips_weights; None: loaded at evaluation if at all
 
 
-def validate(cfg: Any) -> Built:
+def validate(cfg: Any) -> ValidatedRun:
     """The run ``cfg`` describes, built; the first bad setting is one ``ConfigError`` line.
 
     Cheap by design (no dataset files are read, no SLAM state is built), so it runs before any work:
@@ -57,7 +57,7 @@ def validate(cfg: Any) -> Built:
     unknown_params(name, strategy_class(name), (strategy or {}).get("params") or {})
     conf = to_run_config(cfg)  # every rule of every group runs here, the strategy's own checks included
     params = conf.strategy.params if conf.strategy else None
-    built = Built(conf, tree, CheckedStrategy(load_strategy(name, params), name))
+    built = ValidatedRun(conf, tree, CheckedStrategy(load_strategy(name, params), name))
     if conf.eval.lpips and conf.eval.lpips_weights is not None:  # a broken file would fail after the whole run
         from bench.metrics.lpips import LPIPS
 

@@ -1,7 +1,7 @@
 """The typed configuration boundary: every setting's schema and default, registered with Hydra.
 
 Each default is written once, in a dataclass beside the code it configures (``SlamConfig`` in
-``bench/slam/system.py``, the dataset configs in ``bench/datasets/``, strategy hyperparameters in
+``bench/slam/config.py``, the dataset configs in ``bench/datasets/``, strategy hyperparameters in
 ``strategies/``); the run-level settings are below. The YAML files under ``bench/conf/`` pick a schema
 from the ``ConfigStore`` (``schema/dataset/NAME``, ``schema/strategy/NAME``) and only override it,
 so a mistyped key or a wrongly typed value fails at composition, not deep inside a run. Ranges and
@@ -28,9 +28,9 @@ from bench.datasets import schema
 from bench.errors import ConfigError, StrategyError
 from bench.run.checkpoint import CheckpointConfig
 from bench.run.export import SAVE_MAPS
+from bench.slam.config import SlamConfig
 from bench.slam.strategy import GROUP as STRATEGY_GROUP
 from bench.slam.strategy import PruneConfig
-from bench.slam.system import SlamConfig
 
 ALIGNMENTS = ("se3", "sim3", "none")
 PROTOCOLS = ("full", "splatam", "released")  # bench/metrics/protocol.py:PROTOCOLS

@@ -15,7 +15,7 @@ from typing import Any
 from omegaconf import DictConfig
 
 from bench.config.compose import RunConfig, to_run_config
-from bench.datasets import Sequence, canonical_seq
+from bench.datasets import FrameSequence, canonical_seq
 from bench.errors import BenchError
 from bench.run import provenance
 from bench.run.resume import input_fingerprint, resume_key
@@ -25,7 +25,7 @@ NOT_HASHED = ("progress", "out_dir", "resume", "checkpoint")
 
 
 def run_keys(cfg: RunConfig | Mapping[str, Any], tree: Mapping[str, Any] | None = None,
-             seq: Sequence | None = None) -> dict[str, Any]:
+             seq: FrameSequence | None = None) -> dict[str, Any]:
     """The ``run`` block of metrics.json.
 
     ``cfg`` typed (or a composed ``DictConfig``): the keys as reported; with ``tree`` (the resolved

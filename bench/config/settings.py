@@ -38,23 +38,30 @@ class Rule:
     lo: float | None = None
     hi: float | None = None
     lo_open: bool = False  # lo itself excluded
+    hi_open: bool = False  # hi itself excluded
     choices: tuple[str, ...] | None = None
     nullable: bool = False
     pattern: str | None = None  # regex a str must match (device)
-    hint: str = ""  # what the pattern accepts, shown in the message
+    hint: str = ""  # what the value must be, in words, where the range alone would not say it
+    also: tuple[float, ...] = ()  # values accepted outside the range (0 = off)
 
     def expected(self) -> str:
-        if self.choices:
-            text = "one of " + ", ".join(self.choices)
-        elif self.pattern:
+        if self.hint:
             text = self.hint
+        elif self.choices:
+            text = "one of " + ", ".join(self.choices)
         else:
             text = {"int": "an integer", "float": "a number", "bool": "true or false", "str": "a string",
                     "path": "a path to a file", "seq": "a sequence name"}[self.kind]
             if self.lo is not None and self.hi is not None:
-                text += f" in {'(' if self.lo_open else '['}{_fmt(self.lo)}, {_fmt(self.hi)}]"
+                text += (f" in {'(' if self.lo_open else '['}{_fmt(self.lo)}, {_fmt(self.hi)}"
+                         f"{')' if self.hi_open else ']'}")
             elif self.lo is not None:
                 text += f" {'>' if self.lo_open else '>='} {_fmt(self.lo)}"
+            elif self.hi is not None:
+                text += f" {'<' if self.hi_open else '<='} {_fmt(self.hi)}"
+            if self.also:
+                text = " or ".join(_fmt(a) for a in self.also) + " (off) or " + text
         return text + (" or null" if self.nullable else "")
 
     def check(self, key: str, value: Any) -> None:
@@ -71,9 +78,9 @@ class Rule:
             "path": lambda v: isinstance(v, str) and v.strip() != "",
             "seq": lambda v: isinstance(v, (str, int)) and not isinstance(v, bool) and str(v).strip() != "",
         }[self.kind](value)
-        if ok and self.kind in ("int", "float"):
+        if ok and self.kind in ("int", "float") and value not in self.also:
             ok = not (self.lo is not None and (value < self.lo or (self.lo_open and value == self.lo)))
-            ok = ok and not (self.hi is not None and value > self.hi)
+            ok = ok and not (self.hi is not None and (value > self.hi or (self.hi_open and value == self.hi)))
         ok = ok and (self.choices is None or value in self.choices)
         ok = ok and (self.pattern is None or re.fullmatch(self.pattern, value) is not None)
         if not ok:

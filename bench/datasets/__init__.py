@@ -7,19 +7,21 @@ from collections.abc import Mapping
 from typing import Any
 
 from bench.config import plugins as registry
-from bench.datasets.base import Frame, Sequence
+from bench.datasets.base import Frame, FrameSequence
 from bench.errors import DatasetError
 
 GROUP = "pocketbench.datasets"
 
-__all__ = ["GROUP", "Frame", "Sequence", "canonical_seq", "open_sequence", "schema"]
+__all__ = ["GROUP", "Frame", "FrameSequence", "canonical_seq", "open_sequence", "schema"]
+
+Sequence = FrameSequence  # the name dataset plugins written before FrameSequence subclass
 
 
-def open_sequence(name: str, cfg: Mapping[str, Any]) -> Sequence:
+def open_sequence(name: str, cfg: Mapping[str, Any]) -> FrameSequence:
     """Open sequence ``cfg['seq']`` of dataset ``name``; a known failure is a ``DatasetError``."""
     factory = registry.load(GROUP, "dataset", name, DatasetError)
     seq = factory(cfg)
-    if not isinstance(seq, Sequence):
+    if not isinstance(seq, FrameSequence):
         raise DatasetError(
             f"dataset plugin '{name}': expected a bench.datasets.Sequence, found {type(seq).__name__}"
         )

@@ -1,7 +1,7 @@
 """The types every dataset plugin produces, and the settings every dataset shares.
 
 A dataset plugin is a callable registered in the ``pocketbench.datasets`` entry-point group:
-``open_sequence(cfg) -> Sequence``, where ``cfg`` is the ``dataset`` config with ``seq`` (always a
+``open_sequence(cfg) -> FrameSequence``, where ``cfg`` is the ``dataset`` config with ``seq`` (always a
 string) merged in: the loader's own ``DatasetConfig`` subclass for the built-in datasets (a plain
 mapping is checked against it), a plain dict for a plugin without a registered schema.
 """
@@ -80,7 +80,7 @@ class Frame:
     gt_c2w: torch.Tensor | None  # [4, 4] float64 camera-to-world, or None without ground truth
 
 
-class Sequence(ABC):
+class FrameSequence(ABC):
     """A finite, indexable stream of frames from one calibrated camera."""
 
     name: str  # e.g. "kitti/06"
@@ -107,7 +107,7 @@ class Sequence(ABC):
             yield self[i]
 
 
-class TimedSequence(Sequence):
+class TimedSequence(FrameSequence):
     """A sequence known by its timestamps and optional ground truth; subclasses only load images.
 
     Holds what every built-in loader shares: the length, ``has_gt``, ``gt_poses``, the bounds

@@ -26,7 +26,7 @@ import yaml
 
 from bench.config.settings import as_config, setting
 from bench.datasets import _realio as realio
-from bench.datasets.base import Sequence
+from bench.datasets.base import FrameSequence
 from bench.datasets.stereo import DepthCache, StereoConfig, StereoParams, StereoSequence
 from bench.datasets.timestamp_order import order_problem
 from bench.errors import DatasetError
@@ -241,7 +241,7 @@ def rectification(cam0: dict[str, Any], cam1: dict[str, Any], alpha: float) -> d
     return {"R1": R1, "R2": R2, "P1": P1, "P2": P2, "maps": maps}
 
 
-def open_sequence(cfg: EurocConfig | Mapping[str, Any]) -> Sequence:
+def open_sequence(cfg: EurocConfig | Mapping[str, Any]) -> FrameSequence:
     """Open EuRoC sequence ``cfg.seq`` (folder name or alias; every setting: ``EurocConfig``)."""
     cfg = as_config(EurocConfig, cfg)
     requested = cfg.default_sequence()

@@ -19,7 +19,7 @@ import numpy as np
 
 from bench.config.settings import as_config, setting
 from bench.datasets import _realio as realio
-from bench.datasets.base import Sequence
+from bench.datasets.base import FrameSequence
 from bench.datasets.stereo import DepthCache, StereoConfig, StereoSequence
 from bench.datasets.timestamp_order import order_problem
 from bench.errors import DatasetError
@@ -39,7 +39,7 @@ class KittiConfig(StereoConfig):
     default_seq: str = "06"  # numeric names are zero-padded ('6' -> '06')
     # auto | color | gray: image_2/3 (colour) or image_0/1 (gray); falls back with a log line
     color: str = setting("auto", "str", choices=COLOR_MODES)
-    downscale: int = 2  # 1241x376 -> 620x188 (1226x370 -> 613x185); the fused rasterizer affords 4x the pixels of 1/4
+    downscale: int = 2  # 1241x376 -> 620x188 (1226x370 -> 613x185): a size the fused rasterizer affords on a CPU
     max_depth_m: float | None = 50.0  # stereo depth beyond this is set to 0 (1 px of disparity ~ 8 m at 50 m)
     # eval.protocol=splatam's depth range: the released Pocket-SLAM configs/kitti/kitti03.yaml (and kitti00-02,
     # kitti04-10): depth_filter_near 0.1, depth_filter_far 30.0
@@ -207,7 +207,7 @@ def _list_pngs(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png")
 
 
-def open_sequence(cfg: KittiConfig | Mapping[str, Any]) -> Sequence:
+def open_sequence(cfg: KittiConfig | Mapping[str, Any]) -> FrameSequence:
     """Open KITTI odometry sequence ``cfg.seq`` (every setting: ``KittiConfig``)."""
     cfg = as_config(KittiConfig, cfg)
     seq = normalize_seq(cfg.default_sequence())

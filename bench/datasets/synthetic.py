@@ -350,7 +350,7 @@ class SyntheticConfig(DatasetConfig):
 
     name: str = "synthetic"
     seed: int = setting(0, "int", lo=0, hi=SEED_MAX)  # the scene layout (which street); the run's seed does not
-    width: int = setting(320, "int", lo=16)  # px; 4x the pixels of 160x96, which the fused rasterizer affords
+    width: int = setting(320, "int", lo=16)  # px; a size the fused rasterizer affords on a CPU
     height: int = setting(192, "int", lo=16)  # px
     n_frames: int = setting(40, "int", lo=2)  # a drive of n_frames x speed_m_per_frame
     speed_m_per_frame: float = setting(0.5, "float", lo=0.0, lo_open=True)

@@ -23,7 +23,7 @@ import torch
 
 from bench.config.settings import as_config, setting
 from bench.datasets import _realio as realio
-from bench.datasets.base import RecordedConfig, Sequence, TimedSequence
+from bench.datasets.base import FrameSequence, RecordedConfig, TimedSequence
 from bench.datasets.timestamp_order import order_problem
 from bench.errors import ConfigError, DatasetError
 
@@ -183,7 +183,7 @@ def _intrinsics(cfg: TumConfig, folder: str) -> np.ndarray:
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
-def open_sequence(cfg: TumConfig | Mapping[str, Any]) -> Sequence:
+def open_sequence(cfg: TumConfig | Mapping[str, Any]) -> FrameSequence:
     """Open TUM RGB-D sequence ``cfg.seq`` (folder name or 'fr1_desk'; every setting: ``TumConfig``)."""
     cfg = as_config(TumConfig, cfg)
     requested = cfg.default_sequence()

@@ -1,4 +1,5 @@
-"""Peak memory per keyframe window, and wall time per SLAM phase.
+"""Peak memory per keyframe window (CPU RSS, torch live bytes, the CUDA allocator).
+
 
 The paper's headline is peak memory per keyframe window, so every figure here is a *peak inside a
 window* (``start_window`` .. ``end_window``), in MiB (2**20 bytes), or ``None`` where it cannot be
@@ -31,10 +32,10 @@ measured on this machine.
       them through weakref callbacks. Public API, but a Python call per aten op, and blind to
       kernel-internal temporaries.
 
-    The overhead of each method is measured by ``profiling/probe_overhead.py`` (figures in the
-    README and the issue notes, not here): a cost per alloc/free event plus a fixed cost per window,
-    so it shrinks as ops get larger. Pass ``torch_live=False`` to skip it (also when running
-    ``torch.profiler`` yourself: only one profiler can be active). On CUDA devices the figure is
+    The overhead of each method is what ``profiling/probe_overhead.py`` reports: a cost per
+    alloc/free event plus a fixed cost per window, so it shrinks as ops get larger. Pass
+    ``torch_live=False`` to skip it (also when running ``torch.profiler`` yourself: only one
+    profiler can be active). On CUDA devices the figure is
     ``None``: the CUDA allocator's own peak (below) is the exact equivalent there and costs nothing.
 
 ``cuda_alloc_peak_mib`` / ``cuda_reserved_peak_mib`` - ``torch.cuda.max_memory_allocated`` /
@@ -49,7 +50,6 @@ import random
 import re
 import sys
 import threading
-import time
 import weakref
 from collections.abc import Iterator
 from pathlib import Path
@@ -412,48 +412,3 @@ class MemoryProbe:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-class PhaseTimer:
-    """Wall-clock seconds per named phase, summed over calls; CUDA work is synchronised at both ends.
-
-    Without the synchronisation, asynchronous kernels would be billed to whichever phase next
-    waits on the GPU.
-    """
-
-    def __init__(self, device: torch.device | str = "cpu") -> None:
-        self.device = torch.device(device)
-        self._totals_s: dict[str, float] = {}
-        self._counts: dict[str, int] = {}
-
-    def _sync(self) -> None:
-        if self.device.type == "cuda":
-            torch.cuda.synchronize(self.device)
-
-    @contextlib.contextmanager
-    def phase(self, name: str) -> Iterator[None]:
-        """Time the block under ``name`` (nested phases each count their own full duration)."""
-        self._sync()
-        t0 = time.perf_counter()
-        try:
-            yield
-        finally:
-            self._sync()
-            self._totals_s[name] = self._totals_s.get(name, 0.0) + time.perf_counter() - t0
-            self._counts[name] = self._counts.get(name, 0) + 1
-
-    def totals(self) -> dict[str, float]:
-        """Seconds per phase, in first-use order."""
-        return dict(self._totals_s)
-
-    def counts(self) -> dict[str, int]:
-        """How many times each phase ran."""
-        return dict(self._counts)
-
-    def restore(self, totals_s: dict[str, float], counts: dict[str, int]) -> None:
-        """Continue from the totals of a run resumed from a checkpoint."""
-        self._totals_s, self._counts = dict(totals_s), dict(counts)
-
-    def reset(self) -> None:
-        self._totals_s.clear()
-        self._counts.clear()

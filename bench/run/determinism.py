@@ -11,7 +11,7 @@ Why each piece is needed:
   summation order follows the scheduler and two identical runs differ.
 - Seeds: Python's ``random``, numpy's legacy global generator, torch's and OpenCV's (``cv2.setRNGSeed``)
   global generators. The SLAM system also draws from its own generators seeded by the run seed
-  (keyframe sampling, densification offsets, RANSAC order; see ``bench/slam/system.py``), so that
+  (keyframe sampling, densification offsets, RANSAC order; see ``bench.slam.system.System``), so that
   a change in one consumer does not shift the draws of another.
 
 ``determinism=fast`` is the opt-in escape hatch: the same seeds and thread count, but torch may

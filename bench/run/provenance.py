@@ -64,9 +64,15 @@ def collect(device: torch.device) -> dict[str, Any]:
     }
 
 
-# what a result depends on (the configs live in bench/conf); the report code only reads results
+# what a result depends on (the configs live in bench/conf); the report code only reads results,
+# except the figures a run draws into its own dir (RUN_FIGURES), which are part of what a run writes
 CODE_PATHS = ("bench", "strategies", "hydra_plugins", "pyproject.toml")
 READ_ONLY_PATHS = ("bench/report/",)
+RUN_FIGURES = ("bench/report/figures/run_memory.py", "bench/report/figures/pruned_run.py")
+
+
+def _is_code(path: str) -> bool:
+    return not path.startswith(READ_ONLY_PATHS) or path in RUN_FIGURES
 
 
 def code_version() -> dict[str, Any]:
@@ -81,11 +87,15 @@ def code_version() -> dict[str, Any]:
     commit = _git("rev-parse", "HEAD")
     listing = _git("ls-tree", "-r", "HEAD", "--", *CODE_PATHS)  # ls-tree takes no exclude pathspecs
     tree = None if listing is None else "\n".join(
-        line for line in listing.splitlines() if not line.split("\t", 1)[-1].startswith(READ_ONLY_PATHS)
+        line for line in listing.splitlines() if _is_code(line.split("\t", 1)[-1])
     )
+    # git's exclude pathspecs cannot take a file back in, so the run's figures are asked about apart
     status = _git("status", "--porcelain", "--untracked-files=no", "--", *paths)
-    dirty = bool(status) if status is not None else None
-    diff = _git("diff", "HEAD", "--", *paths) if dirty else None
+    status_figures = _git("status", "--porcelain", "--untracked-files=no", "--", *RUN_FIGURES)
+    dirty = bool(status) or bool(status_figures) if status is not None else None
+    diff = None
+    if dirty:
+        diff = (_git("diff", "HEAD", "--", *paths) or "") + (_git("diff", "HEAD", "--", *RUN_FIGURES) or "")
     try:
         package = version("pocketbench")
     except PackageNotFoundError:

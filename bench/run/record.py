@@ -1,6 +1,6 @@
 """Writing ``metrics.json``: atomically, so a reader never sees half a record.
 
-Every write of a run dir's record goes through this module: the run itself (``bench.run.lifecycle``) and the
+Every write of a run dir's record goes through ``RunRecord`` here: the run itself (``bench.run``) and the
 sweeper, which records jobs that never reach a run. A refusal (a job refused before any work: a
 bad setting, data that cannot be opened) writes its ``failed`` record only where no previous run
 left one worth keeping (``record_refusal``), so a rerun refused for a passing reason never turns a
@@ -42,6 +42,27 @@ def write_text(path: Path, text: str) -> None:
         raise
 
 
+class RunRecord(dict):
+    """A run's ``metrics.json`` as it is being made: held here and written whole, atomically, by ``save``.
+
+    The one writer of a run's record: the run while it runs (``save`` after each step a later reader
+    may need), at its end (``close``), and a later run marking a killed one's record (``close``).
+    """
+
+    def __init__(self, path: Path, fields: dict[str, Any]) -> None:
+        super().__init__(fields)
+        self.path = path
+
+    def save(self) -> None:
+        write_json(self.path, self)
+
+    def close(self, **fields: Any) -> None:
+        """The record's last write: ``fields`` (status, error, metrics) set, its owner gone (no longer running)."""
+        self.update(fields)
+        self.pop("owner", None)
+        self.save()
+
+
 def read_record(out: Path) -> dict[str, Any] | None:
     """The ``metrics.json`` in run dir ``out``, or None where there is none (or none readable)."""
     try:
@@ -71,7 +92,8 @@ def record_refusal(out: Path, error: str, run: dict[str, Any], config_yaml: str 
     out.mkdir(parents=True, exist_ok=True)
     if config_yaml is not None:
         write_text(out / "config.yaml", config_yaml)
-    write_json(out / METRICS_FILE, {"status": "failed", "error": error, "run": run, "metrics": {}, "provenance": {}})
+    refused = {"status": "failed", "error": error, "run": run, "metrics": {}, "provenance": {}}
+    RunRecord(out / METRICS_FILE, refused).save()
     return None
 
 

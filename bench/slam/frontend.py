@@ -3,7 +3,7 @@
 Why: photometric tracking of a forward-driving camera has a long, nearly flat valley along the
 optical axis (road and facades are parallel to the motion). A constant-velocity guess a few
 centimetres off can land in the wrong minimum, and the error then compounds from frame to
-frame (measured: lost at frame 16-22 on the synthetic drive and on KITTI 06). Corners tracked
+frame until tracking is lost early in a drive (the runs: the README's "Known limits"). Corners tracked
 between consecutive frames pin the forward motion independently of the map, so the photometric
 refinement starts inside the right basin. The constant-velocity prediction is still where the
 search starts: it seeds PnP's refinement, and it is the guess whenever too few corners survive.
@@ -19,18 +19,26 @@ import cv2
 import numpy as np
 import torch
 
+from bench.config.settings import check_rules, setting
+
 
 @dataclass
 class FlowPnpConfig:
-    max_corners: int = 600
-    quality: float = 0.01  # Shi-Tomasi quality level, relative to the strongest corner
-    min_distance_px: int = 3
-    window_px: int = 15  # Lucas-Kanade window
-    levels: int = 3  # Lucas-Kanade pyramid levels
-    fb_max_px: float = 1.0  # forward-backward disagreement beyond this drops a track
-    max_depth_m: float = 40.0  # far points carry little translation information and noisy depth
-    reproj_px: float = 1.0  # RANSAC inlier threshold
-    min_inliers: int = 30  # fewer: no guess (the caller falls back to constant velocity)
+    max_corners: int = setting(600, "int", lo=1)
+    # Shi-Tomasi quality level, relative to the strongest corner
+    quality: float = setting(0.01, "float", lo=0.0, hi=1.0, lo_open=True)
+    min_distance_px: int = setting(3, "int", lo=0)
+    window_px: int = setting(15, "int", lo=3)  # Lucas-Kanade window
+    levels: int = setting(3, "int", lo=0)  # Lucas-Kanade pyramid levels
+    # forward-backward disagreement beyond this drops a track
+    fb_max_px: float = setting(1.0, "float", lo=0.0, lo_open=True)
+    # far points carry little translation information and noisy depth
+    max_depth_m: float = setting(40.0, "float", lo=0.0, lo_open=True)
+    reproj_px: float = setting(1.0, "float", lo=0.0, lo_open=True)  # RANSAC inlier threshold
+    min_inliers: int = setting(30, "int", lo=4)  # fewer: no guess (the caller falls back to constant velocity)
+
+    def __post_init__(self) -> None:
+        check_rules(self, "slam.flow_pnp.")
 
 
 def to_gray_u8(rgb: torch.Tensor) -> np.ndarray:

@@ -12,6 +12,8 @@ from dataclasses import asdict, dataclass
 
 import torch
 
+from bench.config.settings import check_rules, setting
+
 
 @dataclass
 class LearningRates:
@@ -21,11 +23,14 @@ class LearningRates:
     step faster than 3DGS's colour rate (log-scales at 3DGS's rate).
     """
 
-    means: float = 1e-2  # metres per Adam step; outdoor scenes span 3-120 m
-    log_scales: float = 5e-3
-    quats: float = 1e-3
-    opacity_logits: float = 5e-2
-    colors: float = 2e-2
+    means: float = setting(1e-2, "float", lo=0.0)  # metres per Adam step; outdoor scenes span 3-120 m
+    log_scales: float = setting(5e-3, "float", lo=0.0)
+    quats: float = setting(1e-3, "float", lo=0.0)
+    opacity_logits: float = setting(5e-2, "float", lo=0.0)
+    colors: float = setting(2e-2, "float", lo=0.0)
+
+    def __post_init__(self) -> None:
+        check_rules(self, "slam.lrs.")
 
 
 DEFAULT_LRS: dict[str, float] = asdict(LearningRates())

@@ -3,7 +3,7 @@
 The front (EWA projection, culling, tile rectangles) is torch, so autograd carries gradients from
 the screen-space quantities to every Gaussian parameter and the camera pose. Compositing is either
 the ``torch`` reference below (CPU and CUDA) or the compiled ``fused`` CPU backend
-(``bench/slam/raster_fused.py``), whose memory scales with Gaussians, pairs and pixels.
+(``bench/slam/raster_fused/``), whose memory scales with Gaussians, pairs and pixels.
 
 Both follow the 3DGS CUDA conventions so that pruning statistics mean what they mean in
 the paper's code: EWA projection with a 0.3 px low-pass, alpha = min(0.99, o exp(-d^T S'^-1 d / 2)),
@@ -237,7 +237,7 @@ def rasterize(
     would otherwise shift its rendered depth by 1.2 m and bias depth-supervised tracking.
 
     ``backend``: ``torch`` (the dense reference that autograd differentiates), ``fused`` (compiled
-    CPU kernels, ``bench/slam/raster_fused.py``), ``gsplat`` (CUDA, ``bench/slam/raster_gsplat.py``)
+    CPU kernels, ``bench/slam/raster_fused/``), ``gsplat`` (CUDA, ``bench/slam/raster_gsplat.py``)
     or ``auto`` (see ``resolve_backend``). ``torch`` and ``fused`` return the same outputs and
     gradients up to float32 rounding; ``gsplat`` follows gsplat's footprint and clamp conventions
     (its module docstring lists them).

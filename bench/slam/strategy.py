@@ -119,6 +119,12 @@ class Strategy:
 
     description: ClassVar[str] = ""
 
+    def __post_init__(self) -> None:
+        """Every field declared with ``setting`` checked as the strategy is built: a bad value is one
+        ``ConfigError`` line, ``strategy 'NAME': FIELD: expected ..., found ...`` (NAME: the strategy's
+        module). A subclass with its own ``__post_init__`` calls this one first."""
+        check_rules(self, f"strategy '{type(self).__module__.rpartition('.')[2]}': ")
+
     def state_spec(self) -> dict[str, torch.dtype]:
         """Per-Gaussian state entries this strategy writes (zero-initialised for new Gaussians)."""
         return {}

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from bench.datasets import Sequence, kitti, stereo
+from bench.datasets import FrameSequence, kitti, stereo
 
 FX, CX, CY = 707.0912, 601.8873, 183.1104
 # Real calibration of sequences 04-12 for the colour cameras (KITTI data_odometry_calib).
@@ -20,7 +20,7 @@ P3 = "7.070912e+02 0 6.018873e+02 -3.334597e+02 0 7.070912e+02 1.831104e+02 1.93
 
 def test_intrinsics_baseline_and_padding(kitti_cfg):
     seq = kitti.open_sequence({**kitti_cfg, "seq": "6", "downscale": 1})
-    assert isinstance(seq, Sequence)
+    assert isinstance(seq, FrameSequence)
     assert seq.name == "kitti/06" and len(seq) == 51
     assert (seq.width, seq.height) == (1226, 370)
     expected = torch.tensor([[FX, 0, CX], [0, FX, CY], [0, 0, 1]], dtype=torch.float32)

@@ -2,20 +2,20 @@ import pytest
 
 from bench.config.settings import as_config
 from bench.errors import ConfigError
-from bench.slam.system import SlamConfig
+from bench.slam.config import SlamConfig
 
 
 @pytest.mark.parametrize(
     ("kwargs", "needle"),
     [
-        ({"tracking_iters": 0}, "slam.tracking_iters: expected >= 1, found 0"),
-        ({"kf_every": 0}, "slam.kf_every: expected >= 1, found 0"),
-        ({"refine_iters": -1}, "slam.refine_iters: expected >= 0, found -1"),
-        ({"mapping_window": 0}, "slam.mapping_window: expected >= 1, found 0"),
-        ({"tracking_mask": "fixed"}, "slam.tracking_mask: expected 'current' or 'init', found 'fixed'"),
-        ({"densify_err_median": "all"}, "slam.densify_err_median: expected 'confident' or 'image', found 'all'"),
-        ({"densify_sigma_px": 0.0}, "slam.densify_sigma_px: expected > 0 or null, found 0.0"),
-        ({"init_opacity": 1.0}, r"slam.init_opacity: expected a value in \(0, 1\), found 1.0"),
+        ({"tracking_iters": 0}, "slam.tracking_iters: expected an integer >= 1, found 0"),
+        ({"kf_every": 0}, "slam.kf_every: expected an integer >= 1, found 0"),
+        ({"refine_iters": -1}, "slam.refine_iters: expected an integer >= 0, found -1"),
+        ({"mapping_window": 0}, "slam.mapping_window: expected an integer >= 1 or null, found 0"),
+        ({"tracking_mask": "fixed"}, "slam.tracking_mask: expected one of current, init, found 'fixed'"),
+        ({"densify_err_median": "all"}, "slam.densify_err_median: expected one of confident, image, found 'all'"),
+        ({"densify_sigma_px": 0.0}, "slam.densify_sigma_px: expected a number > 0 or null, found 0.0"),
+        ({"init_opacity": 1.0}, r"slam.init_opacity: expected a number in \(0, 1\), found 1.0"),
     ],
 )
 def test_bad_values_name_the_setting(kwargs, needle):
@@ -66,7 +66,7 @@ def test_splatam_preset_is_splatams_densification_and_nothing_else():
 
 
 def test_released_experiment_composes_the_released_schedule():
-    from bench.run.lifecycle import run_keys
+    from bench.config.identity import run_keys
 
     cfg = _composed("+experiment=released", "dataset=kitti")
     prune = cfg.prune

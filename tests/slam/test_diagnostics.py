@@ -13,8 +13,10 @@ from bench import schema
 from bench.cli.entry import compose
 from bench.datasets.synthetic import open_sequence
 from bench.run.lifecycle import run
+from bench.slam.config import SlamConfig
+from bench.slam.prune_diagnostics import REDUNDANT_WEIGHT
 from bench.slam.strategy import PruneContext, Strategy, load_strategy
-from bench.slam.system import REDUNDANT_WEIGHT, FrameResult, SlamConfig, System
+from bench.slam.system import FrameResult, System
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +36,7 @@ def _run(seq, strategy: Strategy, keep: float = 0.4) -> tuple[list[FrameResult],
     cfg = SlamConfig(tracking_iters=3, tracking_iters_first=5, mapping_iters=3, kf_every=1,
                      lost_min_silhouette_frac=0.0)
     system = System(cfg, seq.K, seq.height, seq.width, strategy, keep, torch.device("cpu"))
-    return [system.process(seq[i]) for i in range(len(seq))], seen
+    return [system.step(seq[i]) for i in range(len(seq))], seen
 
 
 def test_candidate_statistics_match_the_context_the_strategy_saw(seq):

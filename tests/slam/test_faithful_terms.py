@@ -9,10 +9,11 @@ from torchmetrics.functional.image import structural_similarity_index_measure
 
 from bench.datasets.synthetic import open_sequence
 from bench.errors import ConfigError
+from bench.slam.config import SlamConfig
 from bench.slam.frontend import FlowPnpConfig, relative_motion, to_gray_u8
 from bench.slam.losses import dssim, ssim_map
 from bench.slam.strategy import Strategy
-from bench.slam.system import SlamConfig, System
+from bench.slam.system import System
 
 
 @pytest.fixture(scope="module")
@@ -74,7 +75,7 @@ def test_feature_term_changes_tracking_only_when_on(seq):
     for weight in (0.0, 0.0, 1.0):
         s = _system(seq, feature_weight=weight)
         for i in range(3):
-            s.process(seq[i])
+            s.step(seq[i])
         poses.append(s.poses[-1])
     assert torch.equal(poses[0], poses[1])
     assert not torch.equal(poses[0], poses[2])
@@ -82,7 +83,7 @@ def test_feature_term_changes_tracking_only_when_on(seq):
 
 def test_depth_outlier_mask_drops_a_planted_outlier_and_keeps_pixels_without_depth(seq):
     s = _system(seq, tracking_depth_outlier=10.0)
-    s.process(seq[0])
+    s.step(seq[0])
     rgb, depth = s.observe(seq[0])
     depth = depth.clone()
     depth[10, 10] = depth[10, 10] + 50.0  # a car that moved on
@@ -104,7 +105,7 @@ def test_bad_values_are_one_line_errors(bad):
 
 def test_keyframe_rows_carry_the_fit_of_their_own_render(seq):
     s = _system(seq, mapping_iters=5)
-    res = s.process(seq[0])
+    res = s.step(seq[0])
     d = res.diag
     assert 0.0 < d["kf_depth_frac"] <= 1.0
     assert d["kf_psnr_db"] > 5 and d["kf_psnr_depth_db"] > 5

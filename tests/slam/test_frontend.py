@@ -11,9 +11,10 @@ import torch
 from bench.datasets import open_sequence
 from bench.datasets.synthetic import open_sequence as open_synthetic
 from bench.errors import ConfigError
+from bench.slam.config import SlamConfig
 from bench.slam.frontend import FlowPnpConfig, relative_motion, to_gray_u8
 from bench.slam.strategy import Strategy
-from bench.slam.system import SlamConfig, System
+from bench.slam.system import System
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -72,7 +73,7 @@ def test_flow_pnp_is_the_default_and_used_on_textured_frames():
     assert cfg.tracking_init == "flow_pnp"
     s = System(cfg, seq.K, seq.height, seq.width, Strategy(), 0.4, torch.device("cpu"))
     for f in seq:
-        s.process(f)
+        s.step(f)
     assert s.init_source == ["flow_pnp", "flow_pnp"]
 
 
@@ -82,12 +83,12 @@ def test_system_falls_back_to_velocity_without_corners():
                      flow_pnp={"min_inliers": 10_000})
     s = System(cfg, seq.K, seq.height, seq.width, Strategy(), 0.4, torch.device("cpu"))
     for f in seq:
-        s.process(f)
+        s.step(f)
     assert s.init_source == ["velocity", "velocity"]
 
 
 @pytest.mark.parametrize(("kw", "msg"), [
-    ({"tracking_init": "orb"}, "slam.tracking_init: expected 'velocity' or 'flow_pnp', found 'orb'"),
+    ({"tracking_init": "orb"}, "slam.tracking_init: expected one of velocity, flow_pnp, found 'orb'"),
     ({"flow_pnp": {"corners": 5}}, "slam.flow_pnp: expected a setting among .*, found corners"),
     ({"flow_pnp": {"min_inliers": "many"}}, "slam.flow_pnp.min_inliers: expected integer, found 'many'"),
     ({"lrs": {"colour": 0.01}}, "slam.lrs: expected a setting among means.*, found colour"),

@@ -10,8 +10,9 @@ from bench.cli.entry import compose
 from bench.config.compose import to_run_config
 from bench.datasets.synthetic import open_sequence
 from bench.errors import ConfigError
+from bench.slam.config import SlamConfig
 from bench.slam.strategy import PruneConfig, load_strategy
-from bench.slam.system import SlamConfig, System
+from bench.slam.system import System
 
 
 def _system(schedule: str) -> tuple[System, object]:
@@ -28,7 +29,7 @@ def test_mapping_runs_on_the_first_keyframe_only_when_asked(schedule, monkeypatc
     calls: list[int] = []
     optimize = system._optimize
     monkeypatch.setattr(system, "_optimize", lambda kf, iters, pick: (calls.append(kf), optimize(kf, iters, pick)))
-    results = [system.process(seq[i]) for i in range(len(seq))]
+    results = [system.step(seq[i]) for i in range(len(seq))]
     assert all(r.is_keyframe for r in results)
     assert calls == ([0] if schedule == "first" else [0, 1, 2, 3])
     assert all(r.n_added > 0 for r in results)  # densification goes on at every frame
@@ -37,10 +38,10 @@ def test_mapping_runs_on_the_first_keyframe_only_when_asked(schedule, monkeypatc
 
 def test_without_mapping_the_surviving_gaussians_keep_their_values():
     system, seq = _system("first")
-    system.process(seq[0])
+    system.step(seq[0])
     before = {k: v.detach().clone() for k, v in system.map.params.items()}
     n0 = len(system.map)
-    system.process(seq[1])
+    system.step(seq[1])
     old = system.map.birth_kf == 0
     assert 0 < int(old.sum()) <= n0
     kept = torch.nonzero(old).squeeze(1)

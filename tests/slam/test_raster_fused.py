@@ -198,6 +198,7 @@ def test_binning_orders_pairs_as_a_stable_depth_argsort():
     import numpy as np
 
     from bench.slam import raster_fused
+    from bench.slam.raster_fused import binning
 
     g = torch.Generator().manual_seed(3)
     n, tiles_x, tiles_y = 4000, 9, 5
@@ -210,7 +211,7 @@ def test_binning_orders_pairs_as_a_stable_depth_argsort():
                            -1).to(torch.int32)
         tile_start, gid = raster_fused.bin_pairs(rect, z, tiles_x * tiles_y, tiles_x)
         order = torch.argsort(z, stable=True).to(torch.int32).numpy()
-        ref_start, ref_gid = raster_fused._bin_pairs(order, rect.numpy(), tiles_x * tiles_y, tiles_x)
+        ref_start, ref_gid = binning._bin_pairs(order, rect.numpy(), tiles_x * tiles_y, tiles_x)
         assert gid.numel() > n // 2
         assert np.array_equal(tile_start.numpy(), ref_start)
         assert np.array_equal(gid.numpy(), ref_gid)
@@ -252,7 +253,7 @@ def test_backend_choice():
 
 def test_pixel_loops_compile_to_vector_code():
     """The compositing spans stay vectorised: a change that breaks one of the rules written above
-    ``raster_fused.S_X`` passes every value test and is only slower, so the assembly is read here
+    ``raster_fused.compositing.S_X`` passes every value test and is only slower, so the assembly is read here
     (compiled afresh, since numba cannot show the assembly of cached code)."""
     import re
 
@@ -260,7 +261,7 @@ def test_pixel_loops_compile_to_vector_code():
     import numpy as np
     from numba import njit
 
-    from bench.slam import raster_fused as rf
+    from bench.slam.raster_fused import compositing as rf
 
     if "+avx2" not in llvm.get_host_cpu_features().flatten().split(","):
         pytest.skip("the host has no AVX2")

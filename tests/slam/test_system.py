@@ -6,8 +6,9 @@ import torch
 from bench.datasets.base import Frame
 from bench.datasets.synthetic import open_sequence
 from bench.errors import ConfigError, TrackingLost
+from bench.slam.config import SlamConfig
 from bench.slam.strategy import Strategy
-from bench.slam.system import SlamConfig, System
+from bench.slam.system import System
 
 
 @pytest.fixture(scope="module")
@@ -22,17 +23,17 @@ def _system(seq, **kw) -> System:
 
 def test_a_frame_the_map_cannot_explain_is_lost_not_a_crash(seq):
     s = _system(seq, tracking_init="velocity", lost_patience=1, lost_check="color")
-    s.process(seq[0])
-    s.process(seq[1])  # the true next frame is tracked
+    s.step(seq[0])
+    s.step(seq[1])  # the true next frame is tracked
     inverted = seq[2]
     with pytest.raises(TrackingLost, match="colour residual"):
-        s.process(Frame(inverted.index, inverted.timestamp_s, 1 - inverted.rgb, inverted.depth_m, None))
+        s.step(Frame(inverted.index, inverted.timestamp_s, 1 - inverted.rgb, inverted.depth_m, None))
 
 
 def _frame1_error_m(seq, **kw) -> float:
     s = _system(seq, tracking_init="velocity", **kw)
-    s.process(seq[0])
-    s.process(seq[1])
+    s.step(seq[0])
+    s.step(seq[1])
     gt = torch.from_numpy(seq.poses[0]).inverse() @ torch.from_numpy(seq.poses[1])  # frame 1 in frame 0's camera
     est = s.poses[1].double().inverse()
     return float((est[:3, 3] - gt[:3, 3]).norm())
@@ -53,7 +54,7 @@ def _keyframe_l1(s: System) -> float:
 def test_refine_fits_the_keyframes_better_without_adding_gaussians(seq):
     s = _system(seq, kf_every=1, mapping_iters=1)
     for i in range(3):
-        s.process(seq[i])
+        s.step(seq[i])
     n, before = len(s.map), _keyframe_l1(s)
     s.refine(30)
     assert len(s.map) == n
@@ -70,9 +71,9 @@ def test_new_gaussians_survive_a_strategy_that_drops_everything(seq):
     """The core exempts the Gaussians a keyframe added, whatever the strategy's keep mask says."""
     s = System(SlamConfig(tracking_iters=2, tracking_iters_first=2, mapping_iters=1, kf_every=1), seq.K, seq.height,
                seq.width, _DropAll(), 0.4, torch.device("cpu"))
-    first = s.process(seq[0])
+    first = s.step(seq[0])
     assert first.n_added > 0 and len(s.map) == first.n_added  # all new: nothing pruned
-    second = s.process(seq[1])
+    second = s.step(seq[1])
     assert second.is_keyframe and len(s.map) == second.n_added > 0  # only this keyframe's additions remain
 
 
@@ -85,7 +86,7 @@ def mapped_drive():
                      tracking_init="velocity", lost_check="depth")
     s = System(cfg, seq.K, seq.height, seq.width, Strategy(), 0.4, torch.device("cpu"))
     for i in range(7):
-        s.process(seq[i])
+        s.step(seq[i])
     return s, seq
 
 
@@ -96,11 +97,11 @@ def _track_from(s: System, seq, j: int, kick_m: float) -> float:
     kick = torch.eye(4)
     kick[0, 3] = kick_m
     rgb, depth = s.observe(seq[j])
-    recent, bad = list(s._depth_recent), s._bad_frames
+    recent, bad = list(s.lost.depth_recent), s.lost.bad_frames
     try:
         s._track(j, rgb, depth, init=kick @ gt)
     finally:
-        s._depth_recent, s._bad_frames = recent, bad
+        s.lost.depth_recent, s.lost.bad_frames = recent, bad
     return s.track_log[-1][1]
 
 
@@ -138,6 +139,6 @@ def test_checkpoint_state_carries_the_lost_detector(mapped_drive):
     buf.seek(0)
     back = System(s.cfg, seq.K, seq.height, seq.width, Strategy(), 0.4, torch.device("cpu"))
     back.load_state_dict(torch.load(buf, weights_only=True), seq.__getitem__)
-    assert len(s._depth_recent) == 6
-    assert back._depth_recent == s._depth_recent and back._bad_frames == s._bad_frames
-    assert back.track_log == s.track_log and back.depth_lost_threshold_m() == s.depth_lost_threshold_m()
+    assert len(s.lost.depth_recent) == 6
+    assert back.lost.depth_recent == s.lost.depth_recent and back.lost.bad_frames == s.lost.bad_frames
+    assert back.track_log == s.track_log and back.lost.depth_threshold_m() == s.lost.depth_threshold_m()

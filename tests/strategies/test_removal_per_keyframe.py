@@ -14,8 +14,9 @@ import pytest
 import torch
 
 from bench.datasets.synthetic import open_sequence
+from bench.slam.config import SlamConfig
 from bench.slam.strategy import PruneConfig, PruneContext, Strategy, load_strategy
-from bench.slam.system import FrameResult, SlamConfig, System
+from bench.slam.system import FrameResult, System
 from strategies.mask import STATE_MASKED_RUN
 
 KEEP = 0.4
@@ -47,7 +48,7 @@ def _run(seq, strategy: Strategy, prune: PruneConfig | float = KEEP, **slam) -> 
     cfg = SlamConfig(**{"tracking_iters": 3, "tracking_iters_first": 5, "mapping_iters": 3, "kf_every": 1,
                         "lost_min_silhouette_frac": 0.0, **slam})  # heavy pruning of a tiny map
     system = System(cfg, seq.K, seq.height, seq.width, strategy, prune, torch.device("cpu"))
-    results = [system.process(seq[i]) for i in range(len(seq))]
+    results = [system.step(seq[i]) for i in range(len(seq))]
     return results, seen
 
 

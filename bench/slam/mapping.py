@@ -1,0 +1,124 @@
+"""Mapping on a keyframe: Gaussians added where the map is missing or wrong, then the map optimised over a
+window of keyframes; and the refinement over every keyframe once the drive is over."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch
+
+from bench.slam.keyframes import Keyframe
+from bench.slam.losses import dssim
+from bench.slam.se3 import inverse
+from bench.slam.strategy import MappingContext
+
+
+class Mapping:
+    """The mapping half of ``System`` (mixed into it): densification and optimisation of the system's map."""
+
+    @torch.no_grad()
+    def _densify(self, rgb: torch.Tensor, depth: torch.Tensor, w2c: torch.Tensor, kf_idx: int) -> int:
+        cfg = self.cfg
+        valid = depth > 0
+        if len(self.map):
+            out = self.render(w2c)
+            err = (out.depth - depth).abs()
+            if cfg.densify_err_median == "image":  # SplaTAM: over every pixel, those without depth at 0
+                med = (err * valid).median()
+            else:
+                seen = err[valid & (out.alpha > cfg.silhouette_min)]
+                med = seen.median() if seen.numel() else err.new_tensor(float("inf"))
+            need = (out.alpha < cfg.densify_silhouette) | (
+                (err > cfg.densify_depth_err_mult * med) & (out.depth > depth)
+            )
+            if cfg.densify_color_err > 0:
+                need |= (out.color - rgb).abs().mean(-1) > cfg.densify_color_err
+        else:
+            need = torch.ones_like(valid)
+        s = cfg.densify_stride
+        oy, ox = (int(o) for o in self._densify_rng.integers(0, s, size=2))  # the grid's phase varies with the seed
+        grid = torch.zeros_like(valid)
+        grid[oy::s, ox::s] = True
+        sel = need & valid & grid
+        self._reseeded = self._count_in_holes(sel, depth, w2c)
+        if not sel.any():
+            return 0
+        z = depth[sel]  # [M]
+        uv = self._pix[sel]  # [M, 2]
+        fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
+        p_cam = torch.stack([(uv[:, 0] - cx) / fx * z, (uv[:, 1] - cy) / fy * z, z], -1)
+        c2w = inverse(w2c)
+        means = p_cam @ c2w[:3, :3].T + c2w[:3, 3]
+        sigma_px = 0.5 * s + 0.25 if cfg.densify_sigma_px is None else cfg.densify_sigma_px
+        n = z.shape[0]
+        init_logit = torch.logit(torch.tensor(cfg.init_opacity)).item()
+        self.map.add(
+            {
+                "means": means,
+                "log_scales": torch.log(z * sigma_px / fx)[:, None].repeat(1, 3),
+                "quats": torch.tensor([1.0, 0, 0, 0], device=self.device).repeat(n, 1),
+                "opacity_logits": torch.full((n,), init_logit, device=self.device),
+                "colors": rgb[sel],
+            },
+            keyframe=kf_idx,
+        )
+        return n
+
+    def _map(self, kf_idx: int) -> int:
+        """Optimise the map over the keyframe window; the iterations run (none after the first
+        keyframe with ``mapping_schedule=first``)."""
+        cfg = self.cfg
+        if cfg.mapping_schedule == "first" and kf_idx > 0:
+            return 0
+        # the newest keyframes first; older ones keep the views of the early drive from being
+        # overwritten by later close-ups (see mapping_window)
+        window = self.keyframes[::-1][: cfg.mapping_window or len(self.keyframes)]
+
+        def pick(it: int) -> Keyframe:
+            return window[0] if it % 2 == 0 or len(window) == 1 else self._rng.choice(window[1:])
+
+        self._optimize(kf_idx, cfg.mapping_iters, pick)
+        return cfg.mapping_iters
+
+    def refine(self, iters: int, on_step: Callable[[], None] | None = None) -> None:
+        """Optimise the finished map over every keyframe, sampled uniformly.
+
+        During the drive a keyframe gets most of its iterations while it is the newest, so the
+        views of the early drive end up fitted less well than the last ones. MonoGS ends with the
+        same kind of pass (its "colour refinement"); no Gaussian is added or pruned here.
+        ``on_step`` is called after each iteration (progress display).
+        """
+        if iters <= 0 or not self.keyframes:
+            return
+
+        def pick(it: int) -> Keyframe:
+            if it and on_step is not None:
+                on_step()  # iteration it-1 is done
+            return self._rng.choice(self.keyframes)
+
+        self._optimize(len(self.keyframes) - 1, iters, pick)
+        if on_step is not None:
+            on_step()
+
+    def _optimize(self, kf_idx: int, iters: int, pick: Callable[[int], Keyframe]) -> None:
+        """Adam on the map parameters against L1 colour + lambda_d L1 depth of the picked keyframes."""
+        cfg = self.cfg
+        for p in self.map.params.values():
+            p.requires_grad_(True)
+        opt = self.map.optimizer
+        if cfg.mapping_fresh_optimizer:
+            opt.state.clear()
+        for it in range(iters):
+            kf = pick(it)
+            out = self.render(kf.w2c, training=True, iteration=it)
+            color = (out.color - kf.rgb).abs().mean()
+            if cfg.lambda_ssim_map > 0:
+                color = (1 - cfg.lambda_ssim_map) * color + cfg.lambda_ssim_map * dssim(out.color, kf.rgb)
+            loss = color + cfg.lambda_depth_map * self._depth_l1(out, kf.depth)
+            extra = self.strategy.mapping_loss(MappingContext(kf_idx, it, self.map, self.map.state, True))
+            if extra is not None:
+                loss = loss + extra
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+        opt.zero_grad(set_to_none=True)

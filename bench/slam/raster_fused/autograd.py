@@ -1,0 +1,153 @@
+"""The torch face of the kernels: ``project`` and ``composite`` as differentiable ``torch.autograd.Function``s."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import torch
+
+from bench.slam.raster_fused.compositing import (
+    G_SIZE,
+    _backward,
+    _forward,
+    _pack,
+    _reduce_stats,
+    _reduce_sum,
+    _schedule,
+)
+from bench.slam.raster_fused.constants import N_FEAT
+from bench.slam.raster_fused.kernel_cache import _load_from_cache
+from bench.slam.raster_fused.projection import _project_bwd, _project_fwd, _sum_rows
+from bench.slam.raster_fused.threads import set_threads
+
+
+class _Project(torch.autograd.Function):
+    """World Gaussians -> screen (means2d [N, 2], cov [N, 3], z [N]) plus culling and tile rectangles."""
+
+    @staticmethod
+    def forward(ctx, means, log_scales, quats, w2c, cam, width, height, near_m, tiles_x, tiles_y):  # type: ignore[override]
+        # a Gaussian's projection costs a fraction of a pair's compositing, so it goes parallel later
+        set_threads(int(means.shape[0]) // 2)
+        mw, ls, q = (t.detach().float().contiguous() for t in (means, log_scales, quats))
+        rc = w2c.detach()[:3, :3].float().contiguous()
+        tc = w2c.detach()[:3, 3].float().contiguous()
+        n = mw.shape[0]
+        m2 = torch.empty(n, 2)
+        cov = torch.empty(n, 3)
+        z = torch.empty(n)
+        rect = torch.empty(n, 4, dtype=torch.int32)
+        radius_px = torch.empty(n, dtype=torch.int64)
+        tile_id = torch.empty(n, dtype=torch.int64)
+        _project_fwd(mw.numpy(), ls.numpy(), q.numpy(), rc.numpy(), tc.numpy(), cam.numpy(), width, height,
+                     np.float32(near_m), tiles_x, tiles_y, m2.numpy(), cov.numpy(), z.numpy(), rect.numpy(),
+                     radius_px.numpy(), tile_id.numpy())
+        ctx.save_for_backward(mw, ls, q, rc, tc, cam)
+        ctx.dims = (width, height)
+        ctx.mark_non_differentiable(rect, radius_px, tile_id)
+        return m2, cov, z, rect, radius_px, tile_id
+
+    @staticmethod
+    def backward(ctx, g_m2, g_cov, g_z, *_):  # type: ignore[override]
+        mw, ls, q, rc, tc, cam = ctx.saved_tensors
+        set_threads(int(mw.shape[0]) // 2)
+        width, height = ctx.dims
+        n = mw.shape[0]
+        g_m2 = torch.zeros(n, 2) if g_m2 is None else g_m2.float().contiguous()
+        g_cov = torch.zeros(n, 3) if g_cov is None else g_cov.float().contiguous()
+        g_z = torch.zeros(n) if g_z is None else g_z.float().contiguous()
+        g_means, g_ls, g_q = torch.empty(n, 3), torch.empty(n, 3), torch.empty(n, 4)
+        g_pose_rows = torch.empty(n, 12)  # [N, 12]
+        gaussians = any(ctx.needs_input_grad[:3])
+        _project_bwd(mw.numpy(), ls.numpy(), q.numpy(), rc.numpy(), tc.numpy(), cam.numpy(), width, height,
+                     g_m2.numpy(), g_cov.numpy(), g_z.numpy(), gaussians, g_means.numpy(), g_ls.numpy(), g_q.numpy(),
+                     g_pose_rows.numpy())
+        g_pose = torch.zeros(12)
+        _sum_rows(g_pose_rows.numpy(), g_pose.numpy())
+        g_w2c = torch.zeros(4, 4)
+        g_w2c[:3, :3] = g_pose[:9].reshape(3, 3)
+        g_w2c[:3, 3] = g_pose[9:]
+        if not gaussians:
+            g_means = g_ls = g_q = None
+        return g_means, g_ls, g_q, g_w2c, None, None, None, None, None, None
+
+
+def project(
+    means: torch.Tensor, log_scales: torch.Tensor, quats: torch.Tensor, w2c: torch.Tensor, K: torch.Tensor,
+    width: int, height: int, near_m: float, tiles_x: int, tiles_y: int,
+) -> tuple[torch.Tensor, ...]:
+    """means2d [N, 2], cov [N, 3] (a, b, c), z [N] (differentiable in means, log-scales, quats and the
+    pose w2c [4, 4]); rect [N, 4] int32, radius_px [N], tile_id [N] as ``raster._front`` defines them."""
+    _load_from_cache()
+    cam = torch.stack([K[0, 0], K[1, 1], K[0, 2], K[1, 2]]).detach().float().cpu()
+    return _Project.apply(means, log_scales, quats, w2c, cam, width, height, near_m, tiles_x, tiles_y)
+
+
+class _Composite(torch.autograd.Function):
+    """Differentiable compositing of projected Gaussians; per-pixel outputs acc [H*W, 4] and T [H*W]."""
+
+    @staticmethod
+    def forward(ctx, means2d, conic, opac, feat, gid, tile_start, width, height, tiles_x, stats):  # type: ignore[override]
+        set_threads(int(gid.shape[0]))
+        m2 = means2d.detach().contiguous()
+        co = conic.detach().contiguous()
+        op = opac.detach().contiguous()
+        ft = feat.detach().contiguous()
+        hw = width * height
+        acc = torch.empty(hw, N_FEAT, dtype=torch.float32)  # [H*W, 4]
+        t_final = torch.empty(hw, dtype=torch.float32)  # [H*W]
+        last = torch.empty(hw, dtype=torch.int64)  # [H*W] pair index of the last contributor, -1 none
+        n_pairs = int(gid.shape[0]) if stats else 0
+        pair_cov = torch.empty(n_pairs, dtype=torch.float32)
+        pair_hits = torch.empty(n_pairs, dtype=torch.int32)
+        pair_maxw = torch.empty(n_pairs, dtype=torch.float32)
+        gp = torch.empty(m2.shape[0], G_SIZE, dtype=torch.float32)  # [N, 16]
+        _pack(m2.numpy(), co.numpy(), op.numpy(), ft.numpy(), gp.numpy())
+        order, bounds = _schedule(tile_start.numpy(), numba.get_num_threads())
+        _forward(gid.numpy(), tile_start.numpy(), gp.numpy(), width, height, tiles_x, stats, order, bounds,
+                 acc.numpy(), t_final.numpy(), last.numpy(), pair_cov.numpy(), pair_hits.numpy(), pair_maxw.numpy())
+        n = m2.shape[0]
+        coverage = torch.zeros(n if stats else 0, dtype=torch.float32)
+        hit_count = torch.zeros(n if stats else 0, dtype=torch.int64)
+        max_weight = torch.zeros(n if stats else 0, dtype=torch.float32)
+        if stats:
+            _reduce_stats(gid.numpy(), pair_cov.numpy(), pair_hits.numpy(), pair_maxw.numpy(),
+                          coverage.numpy(), hit_count.numpy(), max_weight.numpy())
+        del pair_cov, pair_hits, pair_maxw
+        ctx.save_for_backward(gp, gid, tile_start, t_final, last)
+        ctx.dims = (width, height, tiles_x)
+        ctx.mark_non_differentiable(coverage, hit_count, max_weight)
+        return acc, t_final, coverage, hit_count, max_weight
+
+    @staticmethod
+    def backward(ctx, g_acc, g_t, *_):  # type: ignore[override]
+        gp, gid, tile_start, t_final, last = ctx.saved_tensors
+        set_threads(int(gid.shape[0]))
+        width, height, tiles_x = ctx.dims
+        hw = width * height
+        g_acc = torch.zeros(hw, N_FEAT) if g_acc is None else g_acc.contiguous().to(torch.float32)
+        g_t = torch.zeros(hw) if g_t is None else g_t.contiguous().to(torch.float32)
+        pair_grad = torch.empty(gid.shape[0], 10, dtype=torch.float32)  # [P, 10]
+        order, bounds = _schedule(tile_start.numpy(), numba.get_num_threads())
+        _backward(gid.numpy(), tile_start.numpy(), gp.numpy(), width, height, tiles_x, order, bounds,
+                  t_final.numpy(), last.numpy(), g_acc.numpy(), g_t.numpy(), pair_grad.numpy())
+        grad = torch.zeros(gp.shape[0], 10, dtype=torch.float32)  # [N, 10]
+        _reduce_sum(gid.numpy(), pair_grad.numpy(), grad.numpy())
+        del pair_grad
+        return grad[:, 0:2], grad[:, 2:5], grad[:, 5], grad[:, 6:10], None, None, None, None, None, None
+
+
+def composite(
+    means2d: torch.Tensor,
+    conic: torch.Tensor,
+    opac: torch.Tensor,
+    feat: torch.Tensor,
+    gid: torch.Tensor,
+    tile_start: torch.Tensor,
+    width: int,
+    height: int,
+    tiles_x: int,
+    stats: bool,
+) -> tuple[torch.Tensor, ...]:
+    """acc [H*W, 4], T_final [H*W], and (stats) coverage, hit_count, max_weight [N]; differentiable in
+    means2d [N, 2], conic [N, 3] (a, b, c of the inverse covariance), opac [N] and feat [N, 4]."""
+    return _Composite.apply(means2d, conic, opac, feat, gid, tile_start, width, height, tiles_x, stats)

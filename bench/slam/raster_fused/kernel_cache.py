@@ -1,0 +1,42 @@
+"""Every process on kernels loaded from numba's cache: absent ones are compiled into it first, in a child process."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from bench.slam.raster_fused.binning import _bin_pairs, _depth_order, _in_view
+from bench.slam.raster_fused.compositing import _backward, _forward, _pack, _reduce_stats, _reduce_sum, _schedule
+from bench.slam.raster_fused.projection import _project_bwd, _project_fwd, _sum_rows
+
+_COMPILING_ENV = "POCKETBENCH_COMPILING_KERNELS"
+_cache_checked = False
+
+
+def _load_from_cache() -> None:
+    """Compile the kernels in a child process when numba's cache lacks them, so that this process
+    loads them from the cache like every later one.
+
+    Kernels compiled in the process that runs them gave other roundings than the same kernels loaded
+    from numba's cache (the compositing forward, on identical inputs), so a run that compiled them,
+    the first after an install or a change, did not repeat bit for bit; with every process on cached
+    code it does. Where the cache cannot be written (or numba's internals differ), the kernels
+    compile here as before."""
+    global _cache_checked
+    if _cache_checked or os.environ.get(_COMPILING_ENV):
+        return
+    _cache_checked = True
+    try:
+        kernels = (_project_fwd, _project_bwd, _sum_rows, _in_view, _depth_order, _bin_pairs, _pack, _schedule,
+                   _forward, _backward, _reduce_sum, _reduce_stats)
+        if all(k._cache._cache_file._load_index() for k in kernels):
+            return
+    except Exception:  # noqa: BLE001 - a numba without these internals: compile in this process
+        return
+    root = str(Path(__file__).resolve().parents[3])  # the folder holding the bench package
+    env = dict(os.environ, **{_COMPILING_ENV: "1"})
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
+    subprocess.run([sys.executable, "-c", "from bench.slam.raster_fused import compile_kernels; compile_kernels()"],
+                   env=env, capture_output=True, check=False)
