@@ -14,9 +14,12 @@ config before and after it and comparing what the runs wrote. Compared exactly:
 - ``traj_est.txt`` and ``traj_gt.txt``: byte for byte; ``map.ply`` and ``density.npz`` byte for byte
   when both dirs have them.
 
-Left out: ``provenance`` and ``determinism`` (where and when the run ran: host, packages, git
-commit, config file paths), ``run.code_version`` and ``run.config_hash``'s inputs that name the code
-(a restructure changes the commit by design), ``checkpoint`` (write times), and the log file.
+Left out by value: ``provenance`` and ``determinism`` (where and when the run ran: host, packages,
+git commit, config file paths), ``run.code_version`` (a restructure changes the commit by design),
+``checkpoint`` (write times), and the log file. Their shape still counts: the same keys, and a value
+null in one run is null in the other, so a field that stops being filled is caught; the git fields
+(``provenance.git_commit``, ``git_dirty``) are left out of that too, since one of the two runs may come
+from a source export without ``.git``.
 Exit status 0 when everything compared is identical, 1 otherwise (each difference on one line).
 """
 
@@ -32,6 +35,7 @@ from bench.run.determinism import VOLATILE_KEYFRAME_COLUMNS, VOLATILE_METRICS
 
 BYTE_FILES = ("traj_est.txt", "traj_gt.txt", "map.ply", "density.npz")
 RUN_BLOCK_IGNORED = ("code_version",)  # the git commit: differs between the two code versions by design
+GIT_FIELDS = ("git_commit", "git_dirty")
 
 
 def _metrics(run_dir: Path) -> dict[str, Any]:
@@ -43,10 +47,23 @@ def _keyframes(run_dir: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(fh))
 
 
+def _shape(obj: Any) -> Any:
+    """Keys and null-ness of a json value, not its values."""
+    if isinstance(obj, dict):
+        return {k: _shape(v) for k, v in obj.items()}
+    return "null" if obj is None else "value"
+
+
 def compare(before: Path, after: Path) -> list[str]:
     """One line per difference; empty when the two run dirs hold the same results."""
     diffs: list[str] = []
     a, b = _metrics(before), _metrics(after)
+    for key in ("provenance", "determinism", "checkpoint"):
+        shape_a, shape_b = (_shape({k: v for k, v in (r.get(key) or {}).items() if k not in GIT_FIELDS})
+                            for r in (a, b))
+        if shape_a != shape_b:
+            odd = sorted(k for k in set(shape_a) | set(shape_b) if shape_a.get(k) != shape_b.get(k))
+            diffs.append(f"metrics.json {key}: keys or null values differ at {', '.join(odd)}")
     for key in ("status", "error"):
         if a.get(key) != b.get(key):
             diffs.append(f"metrics.json {key}: {a.get(key)!r} != {b.get(key)!r}")
