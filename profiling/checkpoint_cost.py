@@ -59,9 +59,11 @@ def cost(n: int, keyframes: int, frames: int, repeats: int) -> tuple[float, floa
     system = long_drive_system(n, keyframes, frames)
     parts = RunSetup(None, frames, system.strategy, system, PhaseTimer(), MemoryProbe(torch.device("cpu")))
     row = dict.fromkeys(schema.KEYFRAME_COLUMNS, 0.0)
-    drive = LoopOutcome(timestamps_s=[0.1 * i for i in range(frames)],
-                        gt_c2w=[torch.eye(4, dtype=torch.float64)] * frames,
-                        windows=[{**row, "kf": i} for i in range(keyframes)])
+    drive = LoopOutcome(
+        timestamps_s=[0.1 * i for i in range(frames)],
+        gt_c2w=[torch.eye(4, dtype=torch.float64)] * frames,
+        windows=[{**row, "kf": i} for i in range(keyframes)],
+    )
     code = {"git_commit": "0" * 40, "git_dirty": False}
     record = {"run": {"config_hash": "0" * 16, "code_version": code, "inputs": {}},
               "checkpoint": {"every": 1, "written": 0, "mib_last": None, "write_s_total": 0.0,

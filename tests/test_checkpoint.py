@@ -39,8 +39,9 @@ def bench(args: list[str], cwd: Path, signal_at: str | None = None) -> subproces
     if signal_at:
         env[TEST_SIGNAL_ENV] = signal_at
         env["PYTHONPATH"] = os.pathsep.join((str(HOOKS), str(REPO)))
-    return subprocess.run([sys.executable, "-m", "bench", *args], cwd=cwd, env=env, text=True, capture_output=True,
-                          timeout=900)
+    return subprocess.run(
+        [sys.executable, "-m", "bench", *args], cwd=cwd, env=env, text=True, capture_output=True, timeout=900
+    )
 
 
 def keyframe_rows(run_dir: Path) -> list[dict[str, str]]:
@@ -77,8 +78,9 @@ def checkpoint_frames(reference: Path) -> list[int]:
 @pytest.mark.slow
 @pytest.mark.parametrize("where", ["between", "after"])
 @pytest.mark.parametrize("strategy", ["none", "pocket"])
-def test_sigkilled_run_resumes_to_the_same_results(strategy: str, where: str, references: dict[str, Path],
-                                                    tmp_path: Path) -> None:
+def test_sigkilled_run_resumes_to_the_same_results(
+    strategy: str, where: str, references: dict[str, Path], tmp_path: Path
+) -> None:
     ref = references[strategy]
     at = checkpoint_frames(ref)
     assert len(at) >= 2, f"the tiny drive needs two checkpoints, found them after frames {at}"
@@ -118,14 +120,21 @@ def test_corrupt_checkpoint_is_one_log_line_and_a_fresh_run(references: dict[str
 
 
 @pytest.mark.slow
-def test_preempted_submitit_job_checkpoints_is_requeued_and_resumes(references: dict[str, Path],
-                                                                    tmp_path: Path) -> None:
+def test_preempted_submitit_job_checkpoints_is_requeued_and_resumes(
+    references: dict[str, Path], tmp_path: Path
+) -> None:
     """submitit_local sends the preemption signal (USR2) like SLURM: the job finishes its frame, writes
     a checkpoint, is requeued through the launcher's ``checkpoint()``, and the requeued job resumes."""
     preempt_at = checkpoint_frames(references["none"])[0] + 1  # not a checkpoint frame: the signal writes one
     sweep_dir = tmp_path / "sweep"
-    args = ["--multirun", *TINY, "+strategy=none", "hydra/launcher=submitit_local", "hydra.launcher.timeout_min=10",
-            f"hydra.sweep.dir={sweep_dir}"]
+    args = [
+        "--multirun",
+        *TINY,
+        "+strategy=none",
+        "hydra/launcher=submitit_local",
+        "hydra.launcher.timeout_min=10",
+        f"hydra.sweep.dir={sweep_dir}",
+    ]
     proc = bench(args, tmp_path, signal_at=f"{preempt_at}:USR2")
     assert proc.returncode == 0, proc.stderr[-3000:] + proc.stdout[-2000:]
     (run_dir,) = [p.parent for p in sweep_dir.glob("*/metrics.json")]
@@ -238,8 +247,9 @@ def test_the_docs_list_exactly_what_a_resume_may_change() -> None:
 
 
 @pytest.mark.slow
-def test_a_resumed_run_draws_the_pictures_of_keyframes_before_the_kill(references: dict[str, Path],
-                                                                      tmp_path: Path) -> None:
+def test_a_resumed_run_draws_the_pictures_of_keyframes_before_the_kill(
+    references: dict[str, Path], tmp_path: Path
+) -> None:
     at = checkpoint_frames(references["pocket"])
     run_dir = tmp_path / "run"
     args = [*TINY, "+strategy=pocket", "viz.pruning=true", "viz.every=1", f"hydra.run.dir={run_dir}"]

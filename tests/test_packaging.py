@@ -51,8 +51,23 @@ def test_launcher_configs_share_their_settings():
 def wheel_venv(tmp_path_factory) -> Path:
     """A venv holding this checkout built as a wheel, alone (its dependencies come from this run's site)."""
     root = tmp_path_factory.mktemp("wheel")
-    build = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation",
-                            "-w", str(root / "dist"), str(REPO)], capture_output=True, text=True, timeout=300)
+    build = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "-q",
+            "--no-deps",
+            "--no-build-isolation",
+            "-w",
+            str(root / "dist"),
+            str(REPO),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert build.returncode == 0, build.stderr[-2000:]
     make_venv(root / "venv")
     wheel = next((root / "dist").glob("pocketbench-*.whl"))
@@ -85,7 +100,8 @@ def test_wheel_install_finds_its_configs(wheel_venv, tmp_path):
     # a user's ./conf is searched ahead of the installed configs (hydra_plugins/pocketbench_searchpath)
     (tmp_path / "conf" / "dataset").mkdir(parents=True)
     (tmp_path / "conf" / "dataset" / "kitti.yaml").write_text(
-        "defaults:\n  - /schema/dataset/kitti@_here_\n  - _self_\nroot: /data/my_kitti\n")
+        "defaults:\n  - /schema/dataset/kitti@_here_\n  - _self_\nroot: /data/my_kitti\n"
+    )
     cfg = subprocess.run(["pocketbench", "dataset=kitti", "--cfg", "job"], cwd=tmp_path, env=env, capture_output=True,
                          text=True, timeout=120)  # fmt: skip
     assert cfg.returncode == 0, cfg.stderr[-2000:]
@@ -97,7 +113,7 @@ def test_bash_completion_of_the_installed_command(wheel_venv, tmp_path):
     script = (
         'eval "$(pocketbench -sc install=bash)"\n'
         'COMP_LINE="pocketbench +strategy=po"; COMP_POINT=${#COMP_LINE}; COMP_CWORD=1\n'
-        'hydra_bash_completion\n'
+        "hydra_bash_completion\n"
         'printf "%s\\n" "${COMPREPLY[@]}"\n'
     )
     proc = subprocess.run(["bash", "-c", script], cwd=tmp_path, env=_venv_env(wheel_venv), capture_output=True,

@@ -14,8 +14,17 @@ from bench.config.compose import to_run_config
 from bench.run.lifecycle import run
 from tests.test_bad_input import run_cli, tiny
 
-SMALL = ["+experiment=tiny", "dataset.n_frames=4", "slam.tracking_iters=4", "slam.mapping_iters=4",
-         "slam.refine_iters=0", "eval.every=1", "eval.lpips=false", "eval.at_frames=[3]", "progress=false"]
+SMALL = [
+    "+experiment=tiny",
+    "dataset.n_frames=4",
+    "slam.tracking_iters=4",
+    "slam.mapping_iters=4",
+    "slam.refine_iters=0",
+    "eval.every=1",
+    "eval.lpips=false",
+    "eval.at_frames=[3]",
+    "progress=false",
+]
 
 
 def _run(tmp_path: Path, overrides: list[str]) -> dict:

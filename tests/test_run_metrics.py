@@ -31,7 +31,6 @@ def test_metrics_json_times_and_keys_agree(tmp_path):
     assert m["eval_s"] > 0 and m["wall_s"] >= loop + m["refine_s"] + m["eval_s"]
 
 
-
 @pytest.mark.slow
 def test_peaks_count_the_frames_after_the_last_keyframe(tmp_path, monkeypatch):
     """The frames after the last keyframe form a window no keyframes.csv row closes; the run's peaks

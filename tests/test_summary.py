@@ -100,6 +100,6 @@ def test_format_duration():
 
 
 def test_jobs_record_survives_a_cut_line(tmp_path):
-    (tmp_path / JOBS_FILE).write_text(json.dumps({"start": 1.0, "total": 2}) + "\n{\"num\": 0, \"sta")
+    (tmp_path / JOBS_FILE).write_text(json.dumps({"start": 1.0, "total": 2}) + '\n{"num": 0, "sta')
     line = record_job(tmp_path, {"num": 1, "name": "x=1", "status": "ok", "metrics": {}, "wall_s": 1.0})
     assert line.startswith("sweep: 1/2 runs done")

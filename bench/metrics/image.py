@@ -82,12 +82,14 @@ def psnr_db(pred: torch.Tensor, target: torch.Tensor) -> float:
 
 
 # the SSIM window and constants, shared by SSIM and every scale of MS-SSIM
-_WINDOW = dict(gaussian_kernel=True, sigma=SSIM_SIGMA_PX, kernel_size=SSIM_KERNEL_PX, data_range=DATA_RANGE,
-               k1=SSIM_K1, k2=SSIM_K2)
+_WINDOW = dict(
+    gaussian_kernel=True, sigma=SSIM_SIGMA_PX, kernel_size=SSIM_KERNEL_PX, data_range=DATA_RANGE, k1=SSIM_K1, k2=SSIM_K2
+)
 
 
-def _sized_bchw(pred: torch.Tensor, target: torch.Tensor, metric: str, min_px: int,
-                why: str = "") -> tuple[torch.Tensor, torch.Tensor]:
+def _sized_bchw(
+    pred: torch.Tensor, target: torch.Tensor, metric: str, min_px: int, why: str = ""
+) -> tuple[torch.Tensor, torch.Tensor]:
     """``_to_bchw``, and one ``MetricError`` line when the shorter side is under ``min_px``."""
     p, t = _to_bchw(pred, target)
     if min(p.shape[-2:]) < min_px:

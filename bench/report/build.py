@@ -91,7 +91,12 @@ def make_report(
 
 
 def _make_report(
-    run_dirs: list[Path], out: Path, paper: bool, baseline: str, formats: tuple[str, ...], dpi: int,
+    run_dirs: list[Path],
+    out: Path,
+    paper: bool,
+    baseline: str,
+    formats: tuple[str, ...],
+    dpi: int,
     metrics: tuple[str, ...] | None,
 ) -> ReportResult:
     if not baseline:
@@ -133,8 +138,9 @@ def _make_report(
         stacked.to_csv(files[-1], index=False)
         files.append(out / "scale.md")
         files[-1].write_text(scale_markdown(runs, keyframes, stacked, baseline), encoding="utf-8")
-    files += make_plots(runs, out, warnings.append, formats, dpi, keyframes=keyframes, milestones=milestones,
-                        long_drives=long_drives)
+    files += make_plots(
+        runs, out, warnings.append, formats, dpi, keyframes=keyframes, milestones=milestones, long_drives=long_drives
+    )
     return ReportResult(out, runs, tables, files, collection.skipped, warnings)
 
 
@@ -167,8 +173,16 @@ def redraw(report_dir: Path, formats: tuple[str, ...] = ("png",), dpi: int = DPI
     if not keyframes:
         warnings.append(f"no {POOLED_KEYFRAMES_FILE} in '{report_dir}': per-keyframe figures need the run dirs")
     milestones = _stored_run_tables(report_dir / MILESTONES_FILE)
-    files = make_plots(runs, report_dir, warnings.append, formats, dpi, keyframes=keyframes, milestones=milestones,
-                       long_drives=bool(milestones))
+    files = make_plots(
+        runs,
+        report_dir,
+        warnings.append,
+        formats,
+        dpi,
+        keyframes=keyframes,
+        milestones=milestones,
+        long_drives=bool(milestones),
+    )
     return ReportResult(report_dir, runs, [], files, [], warnings)
 
 
@@ -181,8 +195,10 @@ def _stored_run_tables(path: Path) -> dict[str, pd.DataFrame]:
     except (OSError, ValueError) as exc:
         raise ReportError(f"cannot read '{path}': {exc}") from None
     if "path" not in table:
-        raise ReportError(f"expected a path column (the run each row belongs to) in '{path}', found columns: "
-                          f"{', '.join(map(str, table.columns[:8]))}{', ...' if len(table.columns) > 8 else ''}")
+        raise ReportError(
+            f"expected a path column (the run each row belongs to) in '{path}', found columns: "
+            f"{', '.join(map(str, table.columns[:8]))}{', ...' if len(table.columns) > 8 else ''}"
+        )
     _check_numbers(table, path)
     return grouped_run_tables(table)
 
@@ -192,16 +208,22 @@ def _check_numbers(table: pd.DataFrame, path: Path) -> None:
     otherwise fail mid-drawing, after others were written."""
     from bench import schema
 
-    numbers = {f.name for fields in (schema.RUN_FIELDS, schema.METRIC_FIELDS, schema.KEYFRAME_FIELDS,
-                                     schema.MILESTONE_FIELDS) for f in fields if f.kind == "number"}
+    numbers = {
+        f.name
+        for fields in (schema.RUN_FIELDS, schema.METRIC_FIELDS, schema.KEYFRAME_FIELDS, schema.MILESTONE_FIELDS)
+        for f in fields
+        if f.kind == "number"
+    }
     for column in table.columns:
         if column not in numbers or pd.api.types.is_numeric_dtype(table[column]):
             continue
         bad = table[column].notna() & pd.to_numeric(table[column], errors="coerce").isna()
         if bad.any():
             row = int(bad.to_numpy().nonzero()[0][0])
-            raise ReportError(f"expected numbers in column '{column}' of '{path}', found "
-                              f"{table[column].iloc[row]!r} on line {row + 2}")
+            raise ReportError(
+                f"expected numbers in column '{column}' of '{path}', found "
+                f"{table[column].iloc[row]!r} on line {row + 2}"
+            )
 
 
 STATS_COLUMNS: tuple[str, ...] = (

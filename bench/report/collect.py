@@ -216,8 +216,9 @@ def is_missing(value: Any) -> bool:
     return isinstance(value, float) and math.isnan(value)
 
 
-def read_run_table(path: Path, required: Iterable[str | tuple[str, ...]], warn: Callable[[str], None],
-                   where: str = "") -> pd.DataFrame | None:
+def read_run_table(
+    path: Path, required: Iterable[str | tuple[str, ...]], warn: Callable[[str], None], where: str = ""
+) -> pd.DataFrame | None:
     """One of a run's csv tables (keyframes.csv, milestones.csv), or None with a warning when it is
     not a table holding ``required`` (a tuple there: any one of its columns will do). A missing file
     is None without a warning: the run did not write that table."""
@@ -231,8 +232,11 @@ def read_run_table(path: Path, required: Iterable[str | tuple[str, ...]], warn: 
         warn(f"skipped {path}{where}: expected a csv table, found {exc}")
         return None
     have = set(rows.columns)
-    missing = [c if isinstance(c, str) else "/".join(c) for c in required
-               if not (have & ({c} if isinstance(c, str) else set(c)))]
+    missing = [
+        c if isinstance(c, str) else "/".join(c)
+        for c in required
+        if not (have & ({c} if isinstance(c, str) else set(c)))
+    ]
     if missing:
         warn(f"skipped {path}{where}: expected columns {', '.join(missing)}, found {list(rows.columns)}")
         return None

@@ -153,6 +153,7 @@ def variants(runs: pd.DataFrame) -> list[Variant]:
         ratios[strategy, preset] = ratios.get((strategy, preset), 0) + 1
     several_presets = len({p for _, _, p in triples}) > 1
     out = []
+
     def order(p: tuple[str, float | None, str]) -> tuple:
         return p[2] != "default", p[2], strategy_rank(p[0]), -1.0 if p[1] is None else p[1]
 
@@ -460,8 +461,11 @@ def pick_baseline(found: list[Variant], baseline: str) -> tuple[Baseline | None,
     if not candidates:
         return None, None
     chosen = ([v for v in candidates if v.keep_ratio in (None, 1.0)] or candidates)[0]
-    result = Baseline(chosen, {v.keep_ratio: v for v in candidates if v.slam_preset == chosen.slam_preset},
-                      {(v.slam_preset, v.keep_ratio): v for v in candidates})
+    result = Baseline(
+        chosen,
+        {v.keep_ratio: v for v in candidates if v.slam_preset == chosen.slam_preset},
+        {(v.slam_preset, v.keep_ratio): v for v in candidates},
+    )
     if len({v.keep_ratio for v in candidates}) == 1:
         return result, None
     return result, (
@@ -477,7 +481,10 @@ def protocol_note(protocol: str) -> str:
 
 
 def accuracy_table(
-    runs: pd.DataFrame, dataset: str, paper: pd.DataFrame | None = None, baseline: str = "none",
+    runs: pd.DataFrame,
+    dataset: str,
+    paper: pd.DataFrame | None = None,
+    baseline: str = "none",
     protocol: str = DEFAULT_PROTOCOL,
 ) -> Table:
     """Table I/II layout: ATE, PSNR, SSIM, MS-SSIM, LPIPS blocks of method rows; sequences plus Avg.
@@ -496,16 +503,20 @@ def accuracy_table(
     if paper is not None and _has_overlap(paper, "accuracy", dataset, seqs):
         if is_masked(protocol):
             prows = _paper_rows(paper, "accuracy", dataset, seqs, [m.key for m in ACCURACY_METRICS])
-            notes.append(f"(paper) rows: the figures printed in the Pocket-SLAM paper, not bold-ranked, beside runs "
-                         f"scored with eval.protocol={protocol}; which of the two masked protocols (splatam, "
-                         "released) produced the paper's table is not known. The paper's SSIM is MS-SSIM (its base "
-                         "system's evaluation) and stands in the MS-SSIM block.")
+            notes.append(
+                f"(paper) rows: the figures printed in the Pocket-SLAM paper, not bold-ranked, beside runs "
+                f"scored with eval.protocol={protocol}; which of the two masked protocols (splatam, "
+                "released) produced the paper's table is not known. The paper's SSIM is MS-SSIM (its base "
+                "system's evaluation) and stands in the MS-SSIM block."
+            )
             if prows.recomputed_avg:
                 notes.append("Paper Avg recomputed over the sequences shown.")
         else:
-            notes.append(f"(paper) rows left out: these runs were scored with eval.protocol={protocol}, the paper "
-                         "with masked images (pixels without depth count as perfect); rerun with "
-                         "eval.protocol=splatam or released to set them beside it.")
+            notes.append(
+                f"(paper) rows left out: these runs were scored with eval.protocol={protocol}, the paper "
+                "with masked images (pixels without depth count as perfect); rerun with "
+                "eval.protocol=splatam or released to set them beside it."
+            )
     base, _ = pick_baseline(found, baseline)
     blocks = []
     has_ms_ssim = "ms_ssim" in runs and runs["ms_ssim"].notna().any()
@@ -521,7 +532,10 @@ def accuracy_table(
 
 
 def performance_table(
-    runs: pd.DataFrame, dataset: str, paper: pd.DataFrame | None = None, baseline: str = "none",
+    runs: pd.DataFrame,
+    dataset: str,
+    paper: pd.DataFrame | None = None,
+    baseline: str = "none",
     protocol: str = DEFAULT_PROTOCOL,
 ) -> tuple[Table, list[str]]:
     """Table III/IV layout: peak memory and FPS blocks, each followed by its change vs the baseline.
@@ -589,8 +603,7 @@ def run_protocols(runs: pd.DataFrame) -> pd.Series:
     which (it joins every protocol's table). A runs.csv from before protocols has no column: ``full``."""
     if "eval_protocol" not in runs:
         return pd.Series(DEFAULT_PROTOCOL, index=runs.index, dtype=object)
-    return pd.Series([None if is_missing(p) else str(p) for p in runs["eval_protocol"]], index=runs.index,
-                     dtype=object)
+    return pd.Series([None if is_missing(p) else str(p) for p in runs["eval_protocol"]], index=runs.index, dtype=object)
 
 
 def _protocol_rank(protocol: str) -> tuple[int, str]:
@@ -640,14 +653,20 @@ def select_metrics(table: Table, metrics: tuple[str, ...] | None) -> Table | Non
     if not blocks:
         return None
     shown = {BLOCK_METRIC.get(b.title, b.title) for b in blocks}
-    notes = [n for n in table.notes if n != MARKS_NOTE
-             and all(not n.startswith(prefix) or shown & set(keys) for prefix, keys in _NOTE_METRICS.items())]
+    notes = [
+        n
+        for n in table.notes
+        if n != MARKS_NOTE
+        and all(not n.startswith(prefix) or shown & set(keys) for prefix, keys in _NOTE_METRICS.items())
+    ]
     marks = marks_note(blocks)
     return replace(table, blocks=blocks, notes=[marks, *notes] if marks else notes)
 
 
 def build_tables(
-    runs: pd.DataFrame, paper: pd.DataFrame | None = None, baseline: str = "none",
+    runs: pd.DataFrame,
+    paper: pd.DataFrame | None = None,
+    baseline: str = "none",
     metrics: tuple[str, ...] | None = None,
 ) -> tuple[list[Table], list[str]]:
     """Accuracy and performance tables per dataset from finished runs (``running``/``interrupted`` left out).
@@ -662,11 +681,14 @@ def build_tables(
     protocols = run_protocols(done)
     for dataset in sorted(set(done["dataset"])):
         in_dataset = done["dataset"] == dataset
-        found = sorted({p for p in protocols[in_dataset] if not is_missing(p)} or {DEFAULT_PROTOCOL},
-                       key=_protocol_rank)
+        found = sorted(
+            {p for p in protocols[in_dataset] if not is_missing(p)} or {DEFAULT_PROTOCOL}, key=_protocol_rank
+        )
         if len(found) > 1:
-            warnings.append(f"{dataset}: runs scored with several eval.protocol values ({', '.join(found)}): "
-                            "one table per protocol; figures pool them")
+            warnings.append(
+                f"{dataset}: runs scored with several eval.protocol values ({', '.join(found)}): "
+                "one table per protocol; figures pool them"
+            )
         for protocol in found:
             ds = done[in_dataset & ((protocols == protocol) | protocols.isna())]
             perf, warns = performance_table(ds, dataset, paper, baseline, protocol)

@@ -148,9 +148,11 @@ def read_ply(path: Path) -> dict[str, np.ndarray]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = ArgumentParser(prog="python -m bench.export",
-                                     description="Write a keyframe's map snapshot (save_maps=every_keyframe) as a "
-                                                 "3DGS PLY; every run already leaves its final map as map.ply.")
+    parser = ArgumentParser(
+        prog="python -m bench.export",
+        description="Write a keyframe's map snapshot (save_maps=every_keyframe) as a "
+        "3DGS PLY; every run already leaves its final map as map.ply.",
+    )
     parser.add_argument("run_dir", type=Path, help="a run dir")
     parser.add_argument("--keyframe", type=int, required=True, help="keyframe index K (maps/kf_KKK.npz)")
     parser.add_argument("--out", type=Path, default=None, help="PLY path (default RUN_DIR/map_kfKKK.ply)")

@@ -115,8 +115,13 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
     missing = [name for name, digest in keys["inputs"].items() if digest == "missing"]
     if missing:  # the fingerprint found them gone: refuse now, not at the frame that reads one
         more = f" and {len(missing) - 1} more" if len(missing) > 1 else ""
-        return _refused(out, f"input files: expected every file the dataset lists, found {missing[0]} missing{more}",
-                        keys, OmegaConf.to_yaml(cfg, resolve=True), cfg)
+        return _refused(
+            out,
+            f"input files: expected every file the dataset lists, found {missing[0]} missing{more}",
+            keys,
+            OmegaConf.to_yaml(cfg, resolve=True),
+            cfg,
+        )
     record = RunRecord(metrics_path, {
         "status": "running", "error": None, "run": keys, "determinism": {}, "metrics": {}, "provenance": {},
         "owner": owner(),
@@ -157,16 +162,22 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
         ckpt.truncate_rows(out / schema.KEYFRAMES_FILE, 1, start["rows"]["keyframes"])
         if (out / schema.MILESTONES_FILE).exists():
             ckpt.truncate_rows(out / schema.MILESTONES_FILE, 1, start["rows"].get("milestones", 0))
-        record["checkpoint"] = {**start["stats"], "every": conf.checkpoint.every,
-                                "resumed_from_frames": [*start["stats"]["resumed_from_frames"], start["frame"]]}
+        record["checkpoint"] = {
+            **start["stats"],
+            "every": conf.checkpoint.every,
+            "resumed_from_frames": [*start["stats"]["resumed_from_frames"], start["frame"]],
+        }
     record.save()
     if start is None:
         ckpt.remove(out)  # a previous run's checkpoints: the record they belonged to is replaced now
     stop: Interrupted | None = None
     preempt = Preemption()
     try:
-        with raise_on_signals(), held_preemption() as preempt, \
-                repeatable(conf.seed, conf.threads, conf.determinism, device) as det:
+        with (
+            raise_on_signals(),
+            held_preemption() as preempt,
+            repeatable(conf.seed, conf.threads, conf.determinism, device) as det,
+        ):
             record["determinism"] = det
             record["provenance"] = provenance.collect(device)  # after the thread count is set
             record["provenance"]["config_files"] = _config_files()
@@ -188,15 +199,19 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
                 out = final
     if stop is not None:
         if preempt.signum is not None and preempt.signum == stop.signum:
-            log.warning("%s: preempted after %d frames; checkpoint written, the launcher requeues the job",
-                        out, metrics.get("num_frames", 0))
+            log.warning(
+                "%s: preempted after %d frames; checkpoint written, the launcher requeues the job",
+                out,
+                metrics.get("num_frames", 0),
+            )
             preempt.hand_over()  # the launcher's own handler (submitit: requeue, then exit)
         raise Interrupted(stop.signum, f"{error}; partial results in {out}")
     return RunResult(status, out, metrics, error)
 
 
-def _refused(out: Path, error: str, keys: dict[str, Any], config_yaml: str | None = None,
-             task_cfg: DictConfig | None = None) -> RunResult:
+def _refused(
+    out: Path, error: str, keys: dict[str, Any], config_yaml: str | None = None, task_cfg: DictConfig | None = None
+) -> RunResult:
     """A run refused before any work: recorded ``failed``, unless ``out`` holds a previous run's
     record to keep (finished, resumable or live), which a refusal for a passing reason (data briefly
     unreachable, no CUDA on this node) must not replace."""
@@ -223,15 +238,24 @@ def _previous(out: Path) -> dict[str, Any] | None:
         who = stored.get("owner") or {}
         frames = (stored.get("metrics") or {}).get("num_frames", 0)
         stored = RunRecord(path, stored)
-        stored.close(status="interrupted",
-                     error=f"killed: process {who.get('pid')} stopped while running, after {frames} frames")
-        log.warning("%s: the previous run was killed while running (pid %s); recorded as interrupted",
-                    out, who.get("pid"))
+        stored.close(
+            status="interrupted", error=f"killed: process {who.get('pid')} stopped while running, after {frames} frames"
+        )
+        log.warning(
+            "%s: the previous run was killed while running (pid %s); recorded as interrupted", out, who.get("pid")
+        )
     return stored
 
 
-def _execute(built: ValidatedRun, out: Path, device: torch.device, record: RunRecord, seq: FrameSequence,
-             start: dict[str, Any] | None = None, preempt: Preemption | None = None):
+def _execute(
+    built: ValidatedRun,
+    out: Path,
+    device: torch.device,
+    record: RunRecord,
+    seq: FrameSequence,
+    start: dict[str, Any] | None = None,
+    preempt: Preemption | None = None,
+):
     t_start = time.perf_counter()
     cfg = built.config
     parts = build(cfg, device, seq, built)

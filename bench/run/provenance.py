@@ -13,7 +13,15 @@ from typing import Any
 import torch
 
 PACKAGES = (
-    "pocketbench", "torch", "numpy", "evo", "torchmetrics", "hydra-core", "opencv-python-headless", "numba", "llvmlite",
+    "pocketbench",
+    "torch",
+    "numpy",
+    "evo",
+    "torchmetrics",
+    "hydra-core",
+    "opencv-python-headless",
+    "numba",
+    "llvmlite",
 )
 REPO = Path(__file__).resolve().parents[2]
 
@@ -86,8 +94,10 @@ def code_version() -> dict[str, Any]:
     paths = [*CODE_PATHS, *(f":(exclude){p}" for p in READ_ONLY_PATHS)]
     commit = _git("rev-parse", "HEAD")
     listing = _git("ls-tree", "-r", "HEAD", "--", *CODE_PATHS)  # ls-tree takes no exclude pathspecs
-    tree = None if listing is None else "\n".join(
-        line for line in listing.splitlines() if _is_code(line.split("\t", 1)[-1])
+    tree = (
+        None
+        if listing is None
+        else "\n".join(line for line in listing.splitlines() if _is_code(line.split("\t", 1)[-1]))
     )
     # git's exclude pathspecs cannot take a file back in, so the run's figures are asked about apart
     status = _git("status", "--porcelain", "--untracked-files=no", "--", *paths)

@@ -92,8 +92,16 @@ def relative_motion(
     if prior is not None and np.isfinite(prior).all():
         rvec0, tvec0 = cv2.Rodrigues(prior[:3, :3].astype(np.float64))[0], prior[:3, 3:4].astype(np.float64).copy()
     found, rvec, tvec, inliers = cv2.solvePnPRansac(
-        pts, uv, K.astype(np.float64), None, rvec=rvec0, tvec=tvec0, useExtrinsicGuess=rvec0 is not None,
-        reprojectionError=cfg.reproj_px, iterationsCount=200, flags=cv2.SOLVEPNP_ITERATIVE,
+        pts,
+        uv,
+        K.astype(np.float64),
+        None,
+        rvec=rvec0,
+        tvec=tvec0,
+        useExtrinsicGuess=rvec0 is not None,
+        reprojectionError=cfg.reproj_px,
+        iterationsCount=200,
+        flags=cv2.SOLVEPNP_ITERATIVE,
     )
     n_in = 0 if inliers is None else len(inliers)
     if not found or n_in < cfg.min_inliers or not (np.isfinite(rvec).all() and np.isfinite(tvec).all()):

@@ -100,9 +100,12 @@ def job_dir(config: DictConfig, job: Sequence[str], num: int | None = None) -> P
 def sweep_dir(config: DictConfig, job: Sequence[str]) -> Path:
     """``hydra.sweep.dir`` as ``job`` resolves it: ``multirun/${sweep_name}`` with the job's ``sweep_name``."""
     given = dict(_split(o) for o in job)
-    node = OmegaConf.create({"sweep_name": given.get("sweep_name", OmegaConf.select(config, "sweep_name")),
-                             "hydra": {"sweep": {"dir": OmegaConf.to_container(config.hydra.sweep,
-                                                                               resolve=False)["dir"]}}})
+    node = OmegaConf.create(
+        {
+            "sweep_name": given.get("sweep_name", OmegaConf.select(config, "sweep_name")),
+            "hydra": {"sweep": {"dir": OmegaConf.to_container(config.hydra.sweep, resolve=False)["dir"]}},
+        }
+    )
     return Path(str(node.hydra.sweep.dir))
 
 
@@ -137,5 +140,7 @@ def _unquoted(value: str) -> str:
 
 def header(config: DictConfig, jobs: list[list[str]]) -> dict[str, Any]:
     """What the summary needs of the plan: each job's number, name and dir."""
-    return {"total": len(jobs), "planned": [{"num": i, "name": job_name(j), "dir": str(job_dir(config, j, i))}
-                                            for i, j in enumerate(jobs)]}
+    return {
+        "total": len(jobs),
+        "planned": [{"num": i, "name": job_name(j), "dir": str(job_dir(config, j, i))} for i, j in enumerate(jobs)],
+    }

@@ -71,8 +71,12 @@ def run_table(status: str, out_dir: Path, metrics: dict[str, Any], wall_s: float
             value += " (no AlexNet weights: set eval.lpips_weights=PATH)"
         rows.append((label, value))
     if wall_s is not None:
-        phases = (("SLAM", "slam_wall_s"), ("first frame", "warmup_s"), ("refine", "refine_s"),
-                  ("evaluation", "eval_s"))
+        phases = (
+            ("SLAM", "slam_wall_s"),
+            ("first frame", "warmup_s"),
+            ("refine", "refine_s"),
+            ("evaluation", "eval_s"),
+        )
         parts = [f"{k} {metrics[m]:.1f} s" for k, m in phases if metrics.get(m) is not None]
         rows.append(("wall time", format_duration(wall_s) + (f" ({', '.join(parts)})" if parts else "")))
     rows.append(("run dir", str(out_dir)))

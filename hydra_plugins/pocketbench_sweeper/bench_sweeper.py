@@ -107,10 +107,12 @@ def _run_keys(config: Any, overrides: Sequence[str]) -> dict[str, Any]:
     keys = ("strategy.name", "dataset.name", "slam.name", "seed")
     base = {k: OmegaConf.select(config, k, default=None) for k in keys}
     seed = given.get("seed", base["seed"])
-    return run_keys({
-        "strategy": {"name": given.get("strategy") or base["strategy.name"]},
-        "dataset": {"name": given.get("dataset") or base["dataset.name"]},
-        "slam": {"name": given.get("slam") or base["slam.name"]},
-        "seq": given.get("seq"),
-        "seed": int(seed) if str(seed).isdigit() else None,
-    })
+    return run_keys(
+        {
+            "strategy": {"name": given.get("strategy") or base["strategy.name"]},
+            "dataset": {"name": given.get("dataset") or base["dataset.name"]},
+            "slam": {"name": given.get("slam") or base["slam.name"]},
+            "seq": given.get("seq"),
+            "seed": int(seed) if str(seed).isdigit() else None,
+        }
+    )

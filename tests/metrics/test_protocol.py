@@ -36,7 +36,8 @@ def lower_rows(h: int, w: int, first: int) -> torch.Tensor:
 def test_ms_ssim_is_torchmetrics_with_splatams_arguments() -> None:
     pred, target = pair()
     direct = multiscale_structural_similarity_index_measure(
-        pred.permute(2, 0, 1)[None], target.permute(2, 0, 1)[None], data_range=1.0)  # defaults: 11 px, 1.5, relu
+        pred.permute(2, 0, 1)[None], target.permute(2, 0, 1)[None], data_range=1.0
+    )  # defaults: 11 px, 1.5, relu
     assert ms_ssim(pred, target) == float(direct)
     assert ms_ssim(target, target) == 1.0
     assert ms_ssim(pred.float(), target.float()) == pytest.approx(ms_ssim(pred, target), abs=1e-6)  # float64 inside
@@ -169,10 +170,20 @@ def test_frame_metrics_refuses_a_mask_that_does_not_fit(protocol: str, mask: tor
 
 
 def test_mean_metrics_skips_frames_without_a_value() -> None:
-    res = mean_metrics([{"psnr_db": 20.0, "ssim": 0.5, "ms_ssim": None, "lpips": None, "mask_frac": 0.5},
-                        {"psnr_db": 30.0, "ssim": 0.7, "ms_ssim": None, "lpips": None, "mask_frac": 0.7}])
-    assert res == {"psnr_db": 25.0, "ssim": pytest.approx(0.6), "ms_ssim": None, "lpips": None,
-                   "mask_frac": pytest.approx(0.6), "num_frames": 2}
+    res = mean_metrics(
+        [
+            {"psnr_db": 20.0, "ssim": 0.5, "ms_ssim": None, "lpips": None, "mask_frac": 0.5},
+            {"psnr_db": 30.0, "ssim": 0.7, "ms_ssim": None, "lpips": None, "mask_frac": 0.7},
+        ]
+    )
+    assert res == {
+        "psnr_db": 25.0,
+        "ssim": pytest.approx(0.6),
+        "ms_ssim": None,
+        "lpips": None,
+        "mask_frac": pytest.approx(0.6),
+        "num_frames": 2,
+    }
     with pytest.raises(MetricError, match="no frames to evaluate"):
         mean_metrics([])
 

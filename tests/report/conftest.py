@@ -54,8 +54,15 @@ def write_run(
     doc = {
         "status": status,
         "error": "cuda out of memory" if failed else ("tracking lost at frame 12" if status == "lost" else None),
-        "run": dict(strategy=strategy, dataset=dataset, seq=seq, seed=seed, keep_ratio=keep_ratio, config_hash="ab12",
-                    **({} if slam_preset is None else {"slam_preset": slam_preset})),
+        "run": dict(
+            strategy=strategy,
+            dataset=dataset,
+            seq=seq,
+            seed=seed,
+            keep_ratio=keep_ratio,
+            config_hash="ab12",
+            **({} if slam_preset is None else {"slam_preset": slam_preset}),
+        ),
         "metrics": {} if failed else values,
         "provenance": {"git_commit": "abc", "git_dirty": False, "versions": {"torch": "2.3.0"}, "device": "cpu"},
     }

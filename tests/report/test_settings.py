@@ -40,7 +40,7 @@ def test_settings_are_columns_and_a_section_per_preset(tmp_path: Path) -> None:
     assert by_preset == {"default": {"auto (fused)"}, "splatam": {"torch"}}  # auto names what it chose
     assert set(runs["slam.densify_silhouette"]) == {0.95, 0.5}
     text = (tmp_path / "out" / "tables.md").read_text()
-    section = text[text.index("## Harness settings"):]
+    section = text[text.index("## Harness settings") :]
     assert "| kitti | splatam | 2 | torch |" in section
     assert "`prune.every`" in section and "`slam.tracking_iters`" not in section  # unset keys are left out
     assert result.runs["slam.refine_iters"].tolist() == [0, 0, 0]

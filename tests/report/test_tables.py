@@ -228,13 +228,21 @@ def test_full_protocol_runs_stand_without_paper_rows(tmp_path, make_run) -> None
 
 def test_mixed_protocols_get_a_table_each(tmp_path, make_run) -> None:
     for i, protocol in enumerate(("full", "splatam", "released")):
-        make_run(tmp_path / f"none_{i}", strategy="none", seq="00", keep_ratio=None, eval_protocol=protocol,
-                 psnr_db=20.0 + i, ms_ssim=0.8)
+        make_run(
+            tmp_path / f"none_{i}",
+            strategy="none",
+            seq="00",
+            keep_ratio=None,
+            eval_protocol=protocol,
+            psnr_db=20.0 + i,
+            ms_ssim=0.8,
+        )
     runs = collect([tmp_path]).runs
     tables, warnings = build_tables(runs, load_paper_tables())
     names = [t.name for t in tables]
-    assert names == [f"{kind}_kitti_{p}" for p in ("full", "splatam", "released") for kind in ("accuracy",
-                                                                                                 "performance")]
+    assert names == [
+        f"{kind}_kitti_{p}" for p in ("full", "splatam", "released") for kind in ("accuracy", "performance")
+    ]
     for t in tables:  # one protocol per table, every cell one run: nothing pooled across protocols
         assert t.protocol in t.name and f"eval.protocol={t.protocol}" in t.caption
     for t in (t for t in tables if t.kind == "accuracy"):
