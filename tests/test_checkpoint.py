@@ -151,8 +151,17 @@ KEY = {"config_hash": "abc", "code_version": {"git_commit": "c0", "git_dirty": F
 
 
 def _write(tmp_path: Path, **overrides) -> Path:
-    payload = {"key": KEY, "frame": 4, "keyframe": 1, "system": {}, "drive": {}, "rng": {},
-               "rows": {"traj": 4, "keyframes": 2}, "stats": {}, **overrides}  # fmt: skip
+    payload = {
+        "key": KEY,
+        "frame": 4,
+        "keyframe": 1,
+        "system": {},
+        "drive": {},
+        "rng": {},
+        "rows": {"traj": 4, "keyframes": 2},
+        "stats": {},
+        **overrides,
+    }
     ckpt.save(tmp_path, payload, keep=1)
     return tmp_path / "checkpoint.pt"
 
@@ -166,24 +175,32 @@ def test_find_accepts_a_matching_checkpoint(tmp_path: Path) -> None:
     assert why == "" and found["frame"] == 4
 
 
-@pytest.mark.parametrize("damage, reason", [
-    (lambda p: p.write_bytes(p.read_bytes()[:100]), "checkpoint.pt is unreadable (truncated or corrupt"),
-    (lambda p: p.write_bytes(b"not a checkpoint"), "checkpoint.pt is unreadable (truncated or corrupt"),
-    (lambda p: torch.save({"format": 0}, p), "checkpoint.pt has format 0, expected 2"),
-    (lambda p: torch.save({"format": 1, "obj": object()}, p), "checkpoint.pt is unreadable"),  # not plain values
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "damage, reason",
+    [
+        (lambda p: p.write_bytes(p.read_bytes()[:100]), "checkpoint.pt is unreadable (truncated or corrupt"),
+        (lambda p: p.write_bytes(b"not a checkpoint"), "checkpoint.pt is unreadable (truncated or corrupt"),
+        (lambda p: torch.save({"format": 0}, p), "checkpoint.pt has format 0, expected 2"),
+        (lambda p: torch.save({"format": 1, "obj": object()}, p), "checkpoint.pt is unreadable"),  # not plain values
+    ],
+)
 def test_find_refuses_a_damaged_checkpoint(damage, reason: str, tmp_path: Path) -> None:
     damage(_write(tmp_path))
     found, why = ckpt.find(tmp_path, KEY, ROWS)
     assert found is None and why.startswith(reason), why
 
 
-@pytest.mark.parametrize("key, reason", [
-    ({**KEY, "config_hash": "other"}, "checkpoint.pt is foreign: config changed (hash abc -> other)"),
-    ({**KEY, "code_version": {"git_commit": "c1", "git_dirty": False}},
-     "checkpoint.pt is foreign: code version changed (c0 -> c1)"),
-    ({**KEY, "inputs": {"f": "2"}}, "checkpoint.pt is foreign: input files changed: f"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "key, reason",
+    [
+        ({**KEY, "config_hash": "other"}, "checkpoint.pt is foreign: config changed (hash abc -> other)"),
+        (
+            {**KEY, "code_version": {"git_commit": "c1", "git_dirty": False}},
+            "checkpoint.pt is foreign: code version changed (c0 -> c1)",
+        ),
+        ({**KEY, "inputs": {"f": "2"}}, "checkpoint.pt is foreign: input files changed: f"),
+    ],
+)
 def test_find_refuses_a_foreign_checkpoint(key: dict, reason: str, tmp_path: Path) -> None:
     _write(tmp_path)
     found, why = ckpt.find(tmp_path, key, ROWS)
@@ -197,8 +214,16 @@ def test_find_refuses_a_checkpoint_ahead_of_the_flushed_rows(tmp_path: Path) -> 
 
 
 def test_a_bad_newest_checkpoint_falls_back_to_the_previous_one(tmp_path: Path) -> None:
-    payload = {"key": KEY, "frame": 4, "keyframe": 1, "system": {}, "drive": {}, "rng": {},
-               "rows": {"traj": 4, "keyframes": 2}, "stats": {}}  # fmt: skip
+    payload = {
+        "key": KEY,
+        "frame": 4,
+        "keyframe": 1,
+        "system": {},
+        "drive": {},
+        "rng": {},
+        "rows": {"traj": 4, "keyframes": 2},
+        "stats": {},
+    }
     ckpt.save(tmp_path, payload)
     ckpt.save(tmp_path, {**payload, "frame": 7})
     assert {p.name for p in tmp_path.iterdir()} == {"checkpoint.pt", "checkpoint.prev.pt"}
@@ -228,10 +253,13 @@ def test_global_generators_round_trip(tmp_path: Path) -> None:
     assert torch.equal(want[0], got[0]) and (want[1] == got[1]).all() and want[2] == got[2]
 
 
-@pytest.mark.parametrize("every, keep, message", [
-    (-1, 2, "checkpoint.every: expected an integer >= 0, found -1"),
-    (1, 3, "checkpoint.keep: expected an integer in [1, 2], found 3"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "every, keep, message",
+    [
+        (-1, 2, "checkpoint.every: expected an integer >= 0, found -1"),
+        (1, 3, "checkpoint.keep: expected an integer in [1, 2], found 3"),
+    ],
+)
 def test_checkpoint_config_is_checked(every: int, keep: int, message: str) -> None:
     with pytest.raises(ConfigError, match=re.escape(message)):
         CheckpointConfig(every=every, keep=keep)

@@ -24,8 +24,14 @@ def repo_env() -> dict[str, str]:
 
 
 def test_help_lists_choices_and_examples_not_internal_groups(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "bench", "--help"], cwd=tmp_path, env=repo_env(),
-                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    proc = subprocess.run(
+        [sys.executable, "-m", "bench", "--help"],
+        cwd=tmp_path,
+        env=repo_env(),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr
     out = proc.stdout
     assert out.startswith("pocketbench: benchmark Gaussian-pruning strategies")
@@ -74,8 +80,12 @@ def wheel_venv(tmp_path_factory) -> Path:
     with zipfile.ZipFile(wheel) as zf:  # the packages only: no profiling/, tests/ or reports/
         top = {name.split("/", 1)[0] for name in zf.namelist()}
     assert top - {"bench", "strategies", "hydra_plugins"} == {f"pocketbench-{wheel.name.split('-')[1]}.dist-info"}, top
-    install = subprocess.run([str(root / "venv" / "bin" / "python"), "-m", "pip", "install", "-q", "--no-deps",
-                              str(wheel)], capture_output=True, text=True, timeout=300)  # fmt: skip
+    install = subprocess.run(
+        [str(root / "venv" / "bin" / "python"), "-m", "pip", "install", "-q", "--no-deps", str(wheel)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert install.returncode == 0, install.stderr[-2000:]
     return root / "venv"
 
@@ -89,11 +99,23 @@ def _venv_env(venv: Path) -> dict[str, str]:
 @pytest.mark.slow
 def test_wheel_install_finds_its_configs(wheel_venv, tmp_path):
     env = _venv_env(wheel_venv)
-    where = subprocess.run([str(wheel_venv / "bin" / "python"), "-c", "import bench.conf; print(bench.conf.CONF_DIR)"],
-                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60)  # fmt: skip
+    where = subprocess.run(
+        [str(wheel_venv / "bin" / "python"), "-c", "import bench.conf; print(bench.conf.CONF_DIR)"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert where.stdout.strip().startswith(str(wheel_venv)), where.stdout + where.stderr
-    cfg = subprocess.run(["pocketbench", "+strategy=pocket", "dataset=kitti", "--cfg", "job"], cwd=tmp_path,
-                         env=env, capture_output=True, text=True, timeout=120)  # fmt: skip
+    cfg = subprocess.run(
+        ["pocketbench", "+strategy=pocket", "dataset=kitti", "--cfg", "job"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert cfg.returncode == 0, cfg.stderr[-2000:]
     composed = yaml.safe_load(cfg.stdout)
     assert composed["strategy"]["name"] == "pocket" and composed["dataset"]["name"] == "kitti"
@@ -102,8 +124,14 @@ def test_wheel_install_finds_its_configs(wheel_venv, tmp_path):
     (tmp_path / "conf" / "dataset" / "kitti.yaml").write_text(
         "defaults:\n  - /schema/dataset/kitti@_here_\n  - _self_\nroot: /data/my_kitti\n"
     )
-    cfg = subprocess.run(["pocketbench", "dataset=kitti", "--cfg", "job"], cwd=tmp_path, env=env, capture_output=True,
-                         text=True, timeout=120)  # fmt: skip
+    cfg = subprocess.run(
+        ["pocketbench", "dataset=kitti", "--cfg", "job"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert cfg.returncode == 0, cfg.stderr[-2000:]
     assert yaml.safe_load(cfg.stdout)["dataset"]["root"] == "/data/my_kitti"
 
@@ -116,7 +144,8 @@ def test_bash_completion_of_the_installed_command(wheel_venv, tmp_path):
         "hydra_bash_completion\n"
         'printf "%s\\n" "${COMPREPLY[@]}"\n'
     )
-    proc = subprocess.run(["bash", "-c", script], cwd=tmp_path, env=_venv_env(wheel_venv), capture_output=True,
-                          text=True, timeout=120)  # fmt: skip
+    proc = subprocess.run(
+        ["bash", "-c", script], cwd=tmp_path, env=_venv_env(wheel_venv), capture_output=True, text=True, timeout=120
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.split() == ["+strategy=pocket"], proc.stdout + proc.stderr

@@ -135,8 +135,14 @@ def _record(hc, status: str, out_dir: object, metrics: dict, wall_s: float | Non
     from bench.sweep.plan import job_name
     from bench.sweep.summary import record_job
 
-    job = {"num": hc.job.num, "name": job_name(list(hc.overrides.task)), "status": status, "dir": str(out_dir),
-           "metrics": dict(metrics), "wall_s": wall_s}  # fmt: skip
+    job = {
+        "num": hc.job.num,
+        "name": job_name(list(hc.overrides.task)),
+        "status": status,
+        "dir": str(out_dir),
+        "metrics": dict(metrics),
+        "wall_s": wall_s,
+    }
     print(record_job(hc.sweep.dir, job), file=sys.stderr, flush=True)
 
 

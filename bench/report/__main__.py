@@ -23,9 +23,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("dirs", nargs="*", type=Path, help="sweep or run dirs, searched recursively")
     parser.add_argument("--out", type=Path, help="output dir, e.g. reports/NAME")
-    parser.add_argument("--redraw", type=Path, default=None, metavar="REPORT_DIR",
-                        help="draw the figures of a report folder again from its runs.csv and keyframes.csv "
-                             "(no run dirs needed), in place")  # fmt: skip
+    parser.add_argument(
+        "--redraw",
+        type=Path,
+        default=None,
+        metavar="REPORT_DIR",
+        help="draw the figures of a report folder again from its runs.csv and keyframes.csv "
+        "(no run dirs needed), in place",
+    )
     parser.add_argument(
         "--study",
         default=None,
@@ -36,9 +41,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--baseline", default="none", help="strategy the relative columns compare with")
     parser.add_argument("--format", default="png", help="figure formats, comma-separated: png,pdf,svg (default png)")
     parser.add_argument("--dpi", type=int, default=DPI, help=f"raster resolution of png figures (default {DPI})")
-    parser.add_argument("--labels", type=Path, default=None,
-                        help="YAML of method names and metrics to show (default: the paper's names, all metrics; "
-                             "template: bench/report/labels.yaml)")  # fmt: skip
+    parser.add_argument(
+        "--labels",
+        type=Path,
+        default=None,
+        help="YAML of method names and metrics to show (default: the paper's names, all metrics; "
+        "template: bench/report/labels.yaml)",
+    )
     return parser.parse_args(argv)
 
 
@@ -72,8 +81,10 @@ def main(argv: list[str] | None = None) -> int:
         check_figure_options(formats, args.dpi)  # before any table is written
         if args.redraw is not None:
             if args.dirs or args.out:
-                raise ReportError(f"--redraw takes no run dirs and no --out, found {len(args.dirs)} dirs"
-                                  f"{' and --out' if args.out else ''}")  # fmt: skip
+                raise ReportError(
+                    f"--redraw takes no run dirs and no --out, found {len(args.dirs)} dirs"
+                    f"{' and --out' if args.out else ''}"
+                )
             result = redraw(args.redraw, formats, args.dpi)
             for warning in result.warnings:
                 print(f"warning: {warning}", file=sys.stderr)
@@ -83,8 +94,15 @@ def main(argv: list[str] | None = None) -> int:
             study_inputs(args)
         if not args.dirs or args.out is None:
             raise ReportError("expected run dirs and --out (or --study NAME, or --redraw REPORT_DIR)")
-        result = make_report(args.dirs, args.out, paper=bool(args.paper), baseline=args.baseline, formats=formats,
-                             dpi=args.dpi, labels=load_labels(args.labels))  # fmt: skip
+        result = make_report(
+            args.dirs,
+            args.out,
+            paper=bool(args.paper),
+            baseline=args.baseline,
+            formats=formats,
+            dpi=args.dpi,
+            labels=load_labels(args.labels),
+        )
     except BenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

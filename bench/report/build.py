@@ -65,8 +65,10 @@ def load_labels(path: Path | None) -> Labels:
     if metrics is not None:
         bad = [m for m in metrics if m not in SELECTABLE_METRICS] if isinstance(metrics, list) else [metrics]
         if bad or not metrics:
-            raise ReportError(f"labels file '{path}': expected metrics among {', '.join(SELECTABLE_METRICS)}, "
-                              f"found {', '.join(map(str, bad)) or '(none)'}")  # fmt: skip
+            raise ReportError(
+                f"labels file '{path}': expected metrics among {', '.join(SELECTABLE_METRICS)}, "
+                f"found {', '.join(map(str, bad)) or '(none)'}"
+            )
         metrics = tuple(metrics)
     return Labels({str(k): v for k, v in methods.items()}, metrics)
 
@@ -247,16 +249,25 @@ def seed_statistics(tables: list[Table], baseline: str) -> pd.DataFrame:
                     if cell.kind != "num":
                         continue
                     ci = confidence_interval(cell.values, 0.95)
-                    rows.append({
-                        "dataset": table.dataset, "metric": block.key, "method": row.label,
-                        "strategy": row.variant.strategy, "keep_ratio": row.variant.keep_ratio,
-                        "slam_preset": row.variant.slam_preset, "seq": column, "n_seeds": len(cell.values),
-                        "seeds": " ".join(str(s) for s in cell.seeds), "mean": cell.mean,
-                        "std": statistics.stdev(cell.values) if len(cell.values) > 1 else None,
-                        "ci95_low": None if ci is None else ci[0], "ci95_high": None if ci is None else ci[1],
-                        "baseline": baseline if row.variant.strategy != baseline else None,
-                        "p_welch": cell.p_value,
-                        "within_noise": cell.noise if cell.p_value is not None else None,
-                        "eval_protocol": table.protocol,
-                    })  # fmt: skip
+                    rows.append(
+                        {
+                            "dataset": table.dataset,
+                            "metric": block.key,
+                            "method": row.label,
+                            "strategy": row.variant.strategy,
+                            "keep_ratio": row.variant.keep_ratio,
+                            "slam_preset": row.variant.slam_preset,
+                            "seq": column,
+                            "n_seeds": len(cell.values),
+                            "seeds": " ".join(str(s) for s in cell.seeds),
+                            "mean": cell.mean,
+                            "std": statistics.stdev(cell.values) if len(cell.values) > 1 else None,
+                            "ci95_low": None if ci is None else ci[0],
+                            "ci95_high": None if ci is None else ci[1],
+                            "baseline": baseline if row.variant.strategy != baseline else None,
+                            "p_welch": cell.p_value,
+                            "within_noise": cell.noise if cell.p_value is not None else None,
+                            "eval_protocol": table.protocol,
+                        }
+                    )
     return pd.DataFrame(rows, columns=list(STATS_COLUMNS))

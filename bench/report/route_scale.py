@@ -95,8 +95,12 @@ def _reference_length(dataset: str, seq: str, lengths: pd.DataFrame) -> tuple[st
 
 def _paper_memory_gb(table: pd.DataFrame, strategy: str, seq: str) -> float | None:
     """The paper's KITTI peak memory (GB) of the method behind ``strategy`` on ``seq``; None if it has none."""
-    rows = table[(table["table"] == "performance") & (table["dataset"] == "kitti") & (table["metric"] == "Memory_GB")
-                 & (table["sequence"] == seq)]  # fmt: skip
+    rows = table[
+        (table["table"] == "performance")
+        & (table["dataset"] == "kitti")
+        & (table["metric"] == "Memory_GB")
+        & (table["sequence"] == seq)
+    ]
     for method, value in zip(rows["method"], rows["value"], strict=True):
         if PAPER_STRATEGY.get(method) == strategy and value.strip() != LOST:
             return float(value)
@@ -219,10 +223,13 @@ def _milestone_frames(one: pd.DataFrame, by_path: dict[str, pd.DataFrame]) -> li
 
 def _accuracy_table(one: pd.DataFrame, found: list[Variant], by_path: dict[str, pd.DataFrame]) -> list[str]:
     frames = _milestone_frames(one, by_path)
-    lines = ["Accuracy at the milestones: ATE m / PSNR dB of the drive so far, mean ± std over the ok seeds "
-             "(lost seeds counted in the last column).", "",
-             "| method | " + " | ".join(f"{n} frames" for n in frames) + " | lost |",
-             "|---|" + "---|" * len(frames) + "---|"]  # fmt: skip
+    lines = [
+        "Accuracy at the milestones: ATE m / PSNR dB of the drive so far, mean ± std over the ok seeds "
+        "(lost seeds counted in the last column).",
+        "",
+        "| method | " + " | ".join(f"{n} frames" for n in frames) + " | lost |",
+        "|---|" + "---|" * len(frames) + "---|",
+    ]
     for variant, vr in _variant_rows(one, found):
         cells = []
         for n in frames:

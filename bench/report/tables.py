@@ -186,16 +186,29 @@ def seed_cell(runs: pd.DataFrame, metric: str) -> Cell:
     ok = runs[status == "ok"]
     if ok.empty:
         return Cell("lost") if n_lost else Cell("failed") if n_failed else EMPTY
-    pairs = [(float(v), None if is_missing(s) else int(s)) for v, s in zip(ok[metric], ok["seed"], strict=True)
-             if not is_missing(v)] if metric in ok else []  # fmt: skip
+    pairs = (
+        [
+            (float(v), None if is_missing(s) else int(s))
+            for v, s in zip(ok[metric], ok["seed"], strict=True)
+            if not is_missing(v)
+        ]
+        if metric in ok
+        else []
+    )
     if not pairs:
         return Cell("na")
     values = [v for v, _ in pairs]
     total = len(runs)
     notes = [f"{n}/{total} {what}" for n, what in ((n_lost, "lost"), (n_failed, "failed")) if n]
     std = statistics.stdev(values) if len(values) > 1 else None
-    return Cell("num", mean=statistics.fmean(values), std=std, note=", ".join(notes), values=tuple(values),
-                seeds=tuple(s for _, s in pairs))  # fmt: skip
+    return Cell(
+        "num",
+        mean=statistics.fmean(values),
+        std=std,
+        note=", ".join(notes),
+        values=tuple(values),
+        seeds=tuple(s for _, s in pairs),
+    )
 
 
 def average_cell(cells: list[Cell]) -> Cell:
@@ -207,8 +220,16 @@ def average_cell(cells: list[Cell]) -> Cell:
         note = f"{len(numbers)}/{len(cells)} seqs" if partial else ""
         seeds, values = ((), ()) if partial else _per_seed_averages(numbers)
         # printed without ± as in the paper; the per-seed averages feed the noise test and stats.csv
-        return Cell("num", mean=statistics.fmean(c.mean for c in numbers), decimals=decimals,
-                    unit=numbers[0].unit, note=note, partial=partial, values=values, seeds=seeds)  # fmt: skip
+        return Cell(
+            "num",
+            mean=statistics.fmean(c.mean for c in numbers),
+            decimals=decimals,
+            unit=numbers[0].unit,
+            note=note,
+            partial=partial,
+            values=values,
+            seeds=seeds,
+        )
     for kind in ("lost", "failed", "na"):
         if any(c.kind == kind for c in cells):
             return Cell(kind)
@@ -357,8 +378,16 @@ def mark_noise(block: Block, measured: dict[Variant, list[Cell]], baseline: Base
 
 def seed_note(blocks: list[Block]) -> str:
     """What the spread in the table rests on: how many seeds per cell, and the noise marker."""
-    counts = sorted({len(c.values) for b in blocks for r in b.rows if not r.paper for c in r.cells[:-1]
-                     if c.kind == "num" and c.values})  # fmt: skip
+    counts = sorted(
+        {
+            len(c.values)
+            for b in blocks
+            for r in b.rows
+            if not r.paper
+            for c in r.cells[:-1]
+            if c.kind == "num" and c.values
+        }
+    )
     if not counts or counts[-1] < 2:
         return "1 seed: no noise estimate; a difference from the baseline may be seed noise."
     n = str(counts[0]) if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
@@ -629,20 +658,29 @@ def marks_note(blocks: list[Block]) -> str:
     """The legend of the marks and conventions that occur in these blocks, and only those."""
     cells = [c for b in blocks for r in b.rows if not r.paper for c in r.cells]
     kinds = {c.kind for c in cells}
-    parts = [text for kind, text in (("lost", "'-': tracking lost"), ("na", "'n/a': metric unavailable"),
-                                     ("failed", "'failed': run crashed"), ("empty", "empty: not run"))
-             if kind in kinds]  # fmt: skip
+    parts = [
+        text
+        for kind, text in (
+            ("lost", "'-': tracking lost"),
+            ("na", "'n/a': metric unavailable"),
+            ("failed", "'failed': run crashed"),
+            ("empty", "empty: not run"),
+        )
+        if kind in kinds
+    ]
     sentences = ["; ".join(parts) + "." if parts else ""]
     if any(c.std is not None for c in cells):
         sentences.append("Several seeds: mean ± sample std (n-1).")
     if any(c.note and ("lost" in c.note or "failed" in c.note) for c in cells):
         sentences.append("'k/n lost' counts seeds left out of the mean.")
     if any(c.partial for c in cells):
-        sentences.append("Avg: over the sequences with a value (the paper's convention), 'k/n seqs' where not all "
-                         "have one.")  # fmt: skip
+        sentences.append(
+            "Avg: over the sequences with a value (the paper's convention), 'k/n seqs' where not all have one."
+        )
     if any(c.bold for c in cells):
-        sentences.append("Bold: best measured value" + (" (full averages only)." if any(c.partial for c in cells)
-                                                        else "."))  # fmt: skip
+        sentences.append(
+            "Bold: best measured value" + (" (full averages only)." if any(c.partial for c in cells) else ".")
+        )
     return " ".join(s for s in sentences if s)
 
 

@@ -116,8 +116,10 @@ def export_keyframe(run_dir: Path, keyframe: int, out: Path | None = None) -> Pa
     if not path.is_file():
         have = snapshot_keyframes(run_dir)
         found = f"snapshots of keyframes {', '.join(map(str, have))}" if have else "no snapshots"
-        raise ConfigError(f"expected a snapshot of keyframe {keyframe} in '{run_dir / SNAPSHOT_DIR}' "
-                          f"(made by runs with save_maps=every_keyframe), found {found}")  # fmt: skip
+        raise ConfigError(
+            f"expected a snapshot of keyframe {keyframe} in '{run_dir / SNAPSHOT_DIR}' "
+            f"(made by runs with save_maps=every_keyframe), found {found}"
+        )
     target = Path(out) if out is not None else run_dir / f"map_kf{keyframe:03d}.ply"
     if target.is_dir():
         raise ConfigError(f"--out: expected a PLY file path, found the directory '{target}'")

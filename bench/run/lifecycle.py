@@ -122,10 +122,18 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
             OmegaConf.to_yaml(cfg, resolve=True),
             cfg,
         )
-    record = RunRecord(metrics_path, {
-        "status": "running", "error": None, "run": keys, "determinism": {}, "metrics": {}, "provenance": {},
-        "owner": owner(),
-    })  # fmt: skip
+    record = RunRecord(
+        metrics_path,
+        {
+            "status": "running",
+            "error": None,
+            "run": keys,
+            "determinism": {},
+            "metrics": {},
+            "provenance": {},
+            "owner": owner(),
+        },
+    )
     start: dict[str, Any] | None = None  # the checkpoint a resumed run starts from
     level = logging.INFO  # of the redo line: a warning when a checkpoint was there but unusable
     final = out  # the run dir; a redo of a finished run works in its staging dir until it finishes
@@ -153,8 +161,13 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
             log.log(level, "redoing %s: %s", final, reason)
     job_outputs.keep(final, cfg, out)
     write_text(out / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
-    record["checkpoint"] = {"every": conf.checkpoint.every, "written": 0, "mib_last": None, "write_s_total": 0.0,
-                            "resumed_from_frames": []}  # fmt: skip
+    record["checkpoint"] = {
+        "every": conf.checkpoint.every,
+        "written": 0,
+        "mib_last": None,
+        "write_s_total": 0.0,
+        "resumed_from_frames": [],
+    }
     if start is None:
         (out / TRAJ_EST).unlink(missing_ok=True)
     else:  # rows written after the checkpoint go; the loop appends from there

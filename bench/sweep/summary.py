@@ -118,8 +118,7 @@ def sweep_table(jobs: list[dict[str, Any]]) -> str:
         metrics = job.get("metrics") or {}
         cells = [show(metrics.get(key)) for _, key, show in SWEEP_COLUMNS]
         wall = job.get("wall_s")
-        body.append([name, job.get("status", "?"), *cells,
-                     format_duration(wall) if wall is not None else "n/a"])  # fmt: skip
+        body.append([name, job.get("status", "?"), *cells, format_duration(wall) if wall is not None else "n/a"])
     widths = [max(len(r[i]) for r in [header, *body]) for i in range(len(header))]
     left = {0, 1}
 

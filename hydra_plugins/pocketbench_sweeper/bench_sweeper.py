@@ -93,8 +93,15 @@ class BenchSweeper(BasicSweeper):
         out = job_dir(self.config, overrides, job_idx)
         record_refusal(out, message, _run_keys(self.config, overrides))
         print(f"error: {message}", file=sys.stderr)
-        job = {"num": job_idx, "name": job_name(overrides), "status": "failed", "error": message, "dir": str(out),
-               "metrics": {}, "wall_s": None}  # fmt: skip
+        job = {
+            "num": job_idx,
+            "name": job_name(overrides),
+            "status": "failed",
+            "error": message,
+            "dir": str(out),
+            "metrics": {},
+            "wall_s": None,
+        }
         print(record_job(self.config.hydra.sweep.dir, job), file=sys.stderr, flush=True)
         return False
 

@@ -83,12 +83,15 @@ def test_released_mask_is_the_silhouette_above_one_half() -> None:
     assert protocol_mask("released", None, sil) is not None  # no depth needed
 
 
-@pytest.mark.parametrize(("args", "says"), [
-    (("bogus", torch.ones(2, 2), None), "eval.protocol: expected one of full, splatam, released, found 'bogus'"),
-    (("splatam", None, torch.ones(2, 2)), "protocol splatam: expected depth [h, w], found None"),
-    (("splatam", torch.ones(2, 2), None, 5.0, 1.0), "expected depth_near_m < depth_far_m, found 5.0 and 1.0"),
-    (("released", torch.ones(2, 2), torch.ones(2, 2, 1)), "protocol released: expected a silhouette [h, w]"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (("bogus", torch.ones(2, 2), None), "eval.protocol: expected one of full, splatam, released, found 'bogus'"),
+        (("splatam", None, torch.ones(2, 2)), "protocol splatam: expected depth [h, w], found None"),
+        (("splatam", torch.ones(2, 2), None, 5.0, 1.0), "expected depth_near_m < depth_far_m, found 5.0 and 1.0"),
+        (("released", torch.ones(2, 2), torch.ones(2, 2, 1)), "protocol released: expected a silhouette [h, w]"),
+    ],
+)
 def test_mask_refuses_bad_input_in_one_line(args: tuple, says: str) -> None:
     with pytest.raises(MetricError) as err:
         protocol_mask(*args)
@@ -157,12 +160,19 @@ def test_full_protocol_is_todays_image_metrics_to_the_bit() -> None:
     assert frame_metrics("full", *frames[0], None)["ssim"] == ssim(*frames[0])
 
 
-@pytest.mark.parametrize(("protocol", "mask", "says"), [
-    ("full", torch.ones(180, 200, dtype=torch.bool), "protocol full: expected no mask"),
-    ("splatam", None, "protocol splatam: expected a bool mask of [180, 200], found None"),
-    ("released", torch.ones(180, 200), "protocol released: expected a bool mask of [180, 200], found torch.float32"),
-    ("bogus", None, "eval.protocol: expected one of full, splatam, released"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("protocol", "mask", "says"),
+    [
+        ("full", torch.ones(180, 200, dtype=torch.bool), "protocol full: expected no mask"),
+        ("splatam", None, "protocol splatam: expected a bool mask of [180, 200], found None"),
+        (
+            "released",
+            torch.ones(180, 200),
+            "protocol released: expected a bool mask of [180, 200], found torch.float32",
+        ),
+        ("bogus", None, "eval.protocol: expected one of full, splatam, released"),
+    ],
+)
 def test_frame_metrics_refuses_a_mask_that_does_not_fit(protocol: str, mask: torch.Tensor | None, says: str) -> None:
     with pytest.raises(MetricError, match=None) as err:
         frame_metrics(protocol, *pair(), mask)

@@ -15,8 +15,13 @@ from bench.report.tables import variants
 
 def test_slopes_are_per_100_m_and_skip_the_first_keyframe() -> None:
     d = np.array([0.0, 10.0, 20.0, 30.0, 40.0])
-    kf = pd.DataFrame({"distance_m": d, "n_gaussians": [5000, 1200, 1400, 1600, 1800],  # kf 0: the first seeding
-                       "torch_live_peak_mib": 2.0 + 0.05 * d})  # fmt: skip
+    kf = pd.DataFrame(
+        {
+            "distance_m": d,
+            "n_gaussians": [5000, 1200, 1400, 1600, 1800],  # kf 0: the first seeding
+            "torch_live_peak_mib": 2.0 + 0.05 * d,
+        }
+    )
     got = run_slopes(kf, "torch_live_peak_mib")
     assert got["gaussians_per_100m"] == pytest.approx(2000.0)
     assert got["gaussians_at_0m"] == pytest.approx(1000.0)

@@ -21,7 +21,7 @@ from bench.report.style import (
     ratio_style,
     strategy_colour,
     strategy_keys,
-)  # fmt: skip
+)
 from bench.report.tables import variant_runs, variants
 
 # keyframes.csv memory columns as a reader knows them
@@ -33,24 +33,41 @@ PROBE_NAMES: dict[str, str] = {
 }
 X_LABELS = {"frame": "frame", "distance_m": "distance driven [m]", "path_length_m": "distance driven [m]"}
 MEMORY_VS_DISTANCE: tuple[str, str, tuple[tuple[str, KfValue], ...]] = (
-    "memory_vs_distance", "Memory against distance", (
-        ("Gaussians in the map [thousands]",
-         lambda _r, kf: kf["n_gaussians"] / 1e3 if "n_gaussians" in kf.columns else None),
+    "memory_vs_distance",
+    "Memory against distance",
+    (
+        (
+            "Gaussians in the map [thousands]",
+            lambda _r, kf: kf["n_gaussians"] / 1e3 if "n_gaussians" in kf.columns else None,
+        ),
         ("peak memory [MiB]", lambda r, kf: _peak(r, kf)),
-    ))  # fmt: skip
+    ),
+)
 # (file stem, figure title, rows: (y label, value of one run's keyframes.csv))
 PER_KEYFRAME: tuple[tuple[str, str, tuple[tuple[str, KfValue], ...]], ...] = (
-    ("memory_per_keyframe", "Memory per keyframe", (
-        ("peak memory [MiB]", _peak),
-        ("map state [MiB]\n(parameters, gradients, Adam)", lambda _r, kf: kf["state_mib"]),
-    )),
-    ("gaussians_per_keyframe", "Gaussians per keyframe", (
-        ("Gaussians in the map [thousands]",
-         lambda _r, kf: kf["n_gaussians"] / 1e3 if "n_gaussians" in kf.columns else None),
-        ("Gaussians added since the start\n[thousands]",
-         lambda _r, kf: kf["n_added"].cumsum() / 1e3 if "n_added" in kf.columns else None),
-    )),
-)  # fmt: skip
+    (
+        "memory_per_keyframe",
+        "Memory per keyframe",
+        (
+            ("peak memory [MiB]", _peak),
+            ("map state [MiB]\n(parameters, gradients, Adam)", lambda _r, kf: kf["state_mib"]),
+        ),
+    ),
+    (
+        "gaussians_per_keyframe",
+        "Gaussians per keyframe",
+        (
+            (
+                "Gaussians in the map [thousands]",
+                lambda _r, kf: kf["n_gaussians"] / 1e3 if "n_gaussians" in kf.columns else None,
+            ),
+            (
+                "Gaussians added since the start\n[thousands]",
+                lambda _r, kf: kf["n_added"].cumsum() / 1e3 if "n_added" in kf.columns else None,
+            ),
+        ),
+    ),
+)
 
 
 def _markevery(points: int) -> int | None:
@@ -59,9 +76,18 @@ def _markevery(points: int) -> int | None:
     return None if points <= 60 else max(1, points // 30)
 
 
-def plot_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn, stem: str, title: str,
-                      rows: tuple[tuple[str, KfValue], ...], x_col: str = "frame",
-                      cache: dict[str, pd.DataFrame | None] | None = None) -> Path | None:  # fmt: skip
+def plot_per_keyframe(
+    runs: pd.DataFrame,
+    dataset: str,
+    seq: str,
+    out: Path,
+    warn: Warn,
+    stem: str,
+    title: str,
+    rows: tuple[tuple[str, KfValue], ...],
+    x_col: str = "frame",
+    cache: dict[str, pd.DataFrame | None] | None = None,
+) -> Path | None:
     """Small multiples of per-keyframe quantities (paper Fig. 5): one column of panels per preset
     (and per keep-ratio sweep), one row per quantity, y shared along a row; every seed of a
     variant pooled into a mean line with a ± std band. ``cache``: run path -> the table to read

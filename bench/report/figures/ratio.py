@@ -20,7 +20,7 @@ from bench.report.style import (
     legend_outside,
     new_figure,
     strategy_colour,
-)  # fmt: skip
+)
 from bench.report.tables import variant_runs, variants
 
 DODGE = 0.008  # keep-ratio offset between strategies run at one ratio, so their bars do not overlap
@@ -54,8 +54,13 @@ def plot_ratio(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
     ratios is a line with a band, one run at a single ratio a point with a bar, the unpruned
     baseline a horizontal line with its band."""
     found = variants(runs)
-    swept = sorted({v.slam_preset for v in found if sum(u.strategy == v.strategy and u.slam_preset == v.slam_preset
-                                                         for u in found) > 1})  # fmt: skip
+    swept = sorted(
+        {
+            v.slam_preset
+            for v in found
+            if sum(u.strategy == v.strategy and u.slam_preset == v.slam_preset for u in found) > 1
+        }
+    )
     if not swept:
         return None  # no strategy ran at two keep ratios: nothing to plot against
     known = sorted(set(runs["strategy"]))
@@ -95,8 +100,16 @@ def plot_ratio(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
                 lost = [k for k, _, _, is_lost in points if is_lost and k is not None]
                 if lost:
                     any_lost = True
-                    ax.plot(lost, [0.02] * len(lost), "x", ms=9, mew=2, color=colour,
-                            transform=ax.get_xaxis_transform(), clip_on=False)  # fmt: skip
+                    ax.plot(
+                        lost,
+                        [0.02] * len(lost),
+                        "x",
+                        ms=9,
+                        mew=2,
+                        color=colour,
+                        transform=ax.get_xaxis_transform(),
+                        clip_on=False,
+                    )
                 style = ("-", "o") if len(numeric) > 1 else ("none", "s") if numeric else (":", "")
                 name = method_name(strategy) + ("" if numeric else " (no pruning)")
                 handles.append(key(name, colour, style[0], style[1]))
