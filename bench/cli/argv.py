@@ -31,7 +31,9 @@ def check_overrides(argv: list[str]) -> None:
 
 def split_args(argv: list[str]) -> tuple[bool, list[str], list[str]] | None:
     """(multirun, job overrides, hydra overrides) of a command line; None when it holds other flags."""
-    multirun, job, hyd = False, [], []
+    multirun = False
+    job: list[str] = []
+    hyd: list[str] = []
     for arg in argv:
         if arg in ("-m", "--multirun"):
             multirun = True

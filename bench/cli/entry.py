@@ -77,7 +77,7 @@ def precheck(argv: list[str]) -> ValidatedRun | None:
     try:
         if multirun:  # what Hydra composes before any job: the command line without its sweeps
             parsed = OverridesParser.create().parse_overrides(job)
-            job = [o.input_line for o in parsed if not o.is_sweep_override()]
+            job = [o.input_line for o in parsed if not o.is_sweep_override() and o.input_line is not None]
         cfg = compose(job)
     except (HydraException, OmegaConfBaseException) as exc:
         raise ConfigError(composition_error(exc, job)) from None

@@ -35,10 +35,11 @@ def run_keys(
     settings as given (a job that never composed): the names as given, the rest null.
     """
     if isinstance(cfg, DictConfig):
+        given = cfg
         try:
-            cfg = to_run_config(cfg)
+            cfg = to_run_config(given)
         except BenchError:  # the bad value may be one of the keys: record the names as given
-            return _as_given(cfg)
+            return _as_given(given)
     if not isinstance(cfg, RunConfig):
         return _as_given(cfg)
     prunes = cfg.strategy is not None and cfg.strategy.name != "none"

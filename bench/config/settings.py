@@ -213,7 +213,7 @@ def describe_error(exc: OmegaConfBaseException, prefix: str = "") -> str:
     key = ".".join(filter(None, (prefix, getattr(exc, "full_key", None) or "")))
     owner = getattr(exc, "object_type", None)
     unknown = isinstance(exc, (ConfigKeyError, ConfigAttributeError))
-    if unknown and owner is not None and dataclasses.is_dataclass(owner):
+    if unknown and isinstance(owner, type) and dataclasses.is_dataclass(owner):  # object_type: a class or None
         known = ", ".join(f.name for f in dataclasses.fields(owner))
         where = key.rpartition(".")[0] or owner.__name__
         return f"{where}: expected a setting among {known}, found {key.rpartition('.')[2]}"

@@ -171,8 +171,8 @@ def _grid_waypoints(seed: int, length_m: float) -> np.ndarray:
     turn = 1 if rng.random() < 0.5 else -1  # +1: the loop turns right (+x when heading +z), -1: left
     b = GRID_BLOCK_M
     # start, the first crossing, round the block, back through the first crossing onto the first street
-    pts = [(0.0, -0.5 * b), (0.0, 0.0), (0.0, b), (turn * b, b), (turn * b, 0.0), (0.0, 0.0), (0.0, b)]
-    pts = [np.array(p) for p in pts]
+    corners = [(0.0, -0.5 * b), (0.0, 0.0), (0.0, b), (turn * b, b), (turn * b, 0.0), (0.0, 0.0), (0.0, b)]
+    pts = [np.array(p) for p in corners]
     heading = np.array([0.0, 1.0])
     total = 5.5 * b
     while total < length_m + 2 * b:
@@ -585,6 +585,7 @@ class SyntheticSequence(TimedSequence):
             kind[closer] = boxes[j[closer]]
             normal_axis[closer] = np.nanargmax(tmin[np.arange(P), j], axis=1)[closer]
             return
+        assert dists is not None  # rects and dists come together, from _box_rects
         W = self.width
         reach = t_best * dn  # [P] distance to the nearest hit so far (inf: sky)
         for b, dist, (r0, r1, c0, c1) in zip(boxes, dists, rects, strict=True):

@@ -93,6 +93,11 @@ def _flat_metrics(metrics: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _dict_or_empty(value: Any) -> dict[str, Any]:
+    """``value`` if a JSON object, else ``{}`` (a block missing or null in an older metrics.json)."""
+    return value if isinstance(value, dict) else {}
+
+
 def read_run(run_dir: Path) -> dict[str, Any]:
     """One flat row from ``run_dir/metrics.json``; ``ReportError`` says what is malformed."""
     path = Path(run_dir) / schema.METRICS_FILE
@@ -150,10 +155,10 @@ def read_run(run_dir: Path) -> dict[str, Any]:
     for key, value in sorted(values.items()):
         if key not in row:  # metrics.keep_ratio repeats run.keep_ratio (bench.schema): the run key stands
             row[key] = value
-    provenance = data.get("provenance") if isinstance(data.get("provenance"), dict) else {}
+    provenance = _dict_or_empty(data.get("provenance"))
     for key in ("git_commit", "git_dirty", "device", "numba_cpu", "torch_cpu_capability"):
         row[key] = provenance.get(key)
-    versions = provenance.get("versions") if isinstance(provenance.get("versions"), dict) else {}
+    versions = _dict_or_empty(provenance.get("versions"))
     for name, version in sorted(versions.items()):
         row[f"version_{name}"] = version
     row.update(read_settings(run_dir, provenance.get("device")))

@@ -47,6 +47,12 @@ class Cell:
 EMPTY = Cell("empty")
 
 
+def _num(cell: Cell) -> float:
+    """The mean of a "num" cell: every one has a mean (the other kinds are marks without a number)."""
+    assert cell.mean is not None, cell
+    return cell.mean
+
+
 @dataclass
 class Row:
     label: str
@@ -222,7 +228,7 @@ def average_cell(cells: list[Cell]) -> Cell:
         # printed without ± as in the paper; the per-seed averages feed the noise test and stats.csv
         return Cell(
             "num",
-            mean=statistics.fmean(c.mean for c in numbers),
+            mean=statistics.fmean(_num(c) for c in numbers),
             decimals=decimals,
             unit=numbers[0].unit,
             note=note,
@@ -320,7 +326,7 @@ def mark_best(block: Block) -> None:
             for row in block.rows
             if not row.paper and row.cells[col].kind == "num" and not row.cells[col].partial
         ]
-        shown = [round(c.mean, c.decimals if c.decimals is not None else block.decimals) for _, c in candidates]
+        shown = [round(_num(c), c.decimals if c.decimals is not None else block.decimals) for _, c in candidates]
         if len(set(shown)) < 2:
             continue
         best = min(shown) if block.better == "lower" else max(shown)
@@ -406,8 +412,8 @@ def relative_cells(cells: list[Cell], base: list[Cell], style: Style) -> list[Ce
     pairs = []
     for cell, ref in zip(cells[:-1], base[:-1], strict=True):
         if cell.kind == "num" and ref.kind == "num" and ref.mean:
-            pairs.append((cell.mean, ref.mean))
-            out.append(replace(_ratio_cell(cell.mean / ref.mean, style), p_value=cell.p_value, noise=cell.noise))
+            pairs.append((_num(cell), ref.mean))
+            out.append(replace(_ratio_cell(_num(cell) / ref.mean, style), p_value=cell.p_value, noise=cell.noise))
         elif "lost" in (cell.kind, ref.kind):
             out.append(Cell("lost"))
         elif "failed" in (cell.kind, ref.kind):
@@ -478,9 +484,9 @@ class Baseline:
         same = self.by_preset.get((variant.slam_preset, variant.keep_ratio))
         if same is not None:
             return same
-        same = [v for (p, _), v in self.by_preset.items() if p == variant.slam_preset]
-        if same:
-            return ([v for v in same if v.keep_ratio in (None, 1.0)] or same)[0]
+        in_preset = [v for (p, _), v in self.by_preset.items() if p == variant.slam_preset]
+        if in_preset:
+            return ([v for v in in_preset if v.keep_ratio in (None, 1.0)] or in_preset)[0]
         return self.by_keep.get(variant.keep_ratio, self.default)
 
 

@@ -126,7 +126,7 @@ def evaluate(
     ts = np.asarray(drive.timestamps_s)
     est = Trajectory.from_c2w(ts, torch.stack(est_c2w).numpy())
     if all(g is not None for g in drive.gt_c2w) and len(est_c2w) >= 3:
-        gt_world = torch.stack([g.double() for g in drive.gt_c2w])
+        gt_world = torch.stack([g.double() for g in drive.gt_c2w if g is not None])  # all are, checked above
         gt_world = inverse(gt_world[0]).expand_as(gt_world) @ gt_world  # first camera = origin, like the estimate
         gt = Trajectory.from_c2w(ts, gt_world.numpy())
         if write_gt:

@@ -92,7 +92,8 @@ def save_snapshot(run_dir: Path, keyframe: int, gaussians) -> Path:
     """``maps/kf_NNN.npz``: the map after keyframe ``keyframe``'s prune, for ``python -m bench.export``."""
     path = Path(run_dir) / SNAPSHOT_DIR / f"kf_{keyframe:03d}.npz"
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path, **map_arrays(gaussians))
+    # mypy matches **arrays against savez's allow_pickle: bool as well (numpy >= 2.1 stubs); the keys are PARAMS
+    np.savez(path, **map_arrays(gaussians))  # type: ignore[arg-type]
     return path
 
 

@@ -21,7 +21,7 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import torch
 from omegaconf import DictConfig, OmegaConf
@@ -92,7 +92,7 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
     before Hydra starts), used as it is; a config that differs from it is validated again.
     """
     if isinstance(cfg, RunConfig):
-        cfg = OmegaConf.structured(cfg)
+        cfg = cast(DictConfig, OmegaConf.structured(cfg))  # a dataclass instance makes a DictConfig
     out = Path(out_dir or cfg.out_dir or ".").resolve()
     metrics_path = out / schema.METRICS_FILE
     try:
@@ -138,7 +138,7 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
     level = logging.INFO  # of the redo line: a warning when a checkpoint was there but unusable
     final = out  # the run dir; a redo of a finished run works in its staging dir until it finishes
     reason = redo_reason(stored, keys) if conf.resume else "resume=false"
-    if conf.resume and reason is None:
+    if conf.resume and reason is None and stored is not None:  # None: stored holds the same finished run
         log.info("skipping %s: completed results of the same config, code and inputs exist", out)
         return RunResult(stored["status"], out, stored.get("metrics", {}), stored.get("error"), skipped=True)
     if stored is not None and stored.get("status") in schema.FINISHED:
@@ -275,7 +275,8 @@ def _execute(
     parts.keys = record["run"]
     if cfg.viz.pruning:
         parts.viz = parts.system.on_prune = PruneViz(parts.system, out, cfg.viz.every, describe(parts.keys))
-    record["metrics"] = metrics = {"num_frames": 0, "num_keyframes": 0}
+    metrics: dict[str, Any] = {"num_frames": 0, "num_keyframes": 0}
+    record["metrics"] = metrics
     if start is not None:
         restore(parts, start)
         if parts.viz is not None:  # the stopped run's pictures up to the checkpoint are this run's too

@@ -45,14 +45,15 @@ def cpu_target() -> dict[str, str | None]:
         import llvmlite.binding as llvm
         import numba
 
-        numba_cpu = numba.config.CPU_NAME or llvm.get_host_cpu_name()
+        # numba.config sets its settings through globals() at import, out of a type checker's sight
+        numba_cpu = numba.config.CPU_NAME or llvm.get_host_cpu_name()  # type: ignore[attr-defined]
     except ImportError:
         numba_cpu = None
     return {"numba_cpu": numba_cpu, "torch_cpu_capability": torch.backends.cpu.get_cpu_capability()}
 
 
 def collect(device: torch.device) -> dict[str, Any]:
-    versions = {}
+    versions: dict[str, str | None] = {}
     for name in PACKAGES:
         try:
             versions[name] = version(name)

@@ -71,8 +71,9 @@ def relative_motion(
     if p0 is None or len(p0) < cfg.min_inliers:
         return None, 0
     lk = dict(winSize=(cfg.window_px, cfg.window_px), maxLevel=cfg.levels)
-    p1, st, _ = cv2.calcOpticalFlowPyrLK(prev_gray, cur_gray, p0, None, **lk)
-    pb, st_b, _ = cv2.calcOpticalFlowPyrLK(cur_gray, prev_gray, p1, None, **lk)
+    # cv2's stub types nextPts as a required array; None (OpenCV allocates the output) is what its docs show
+    p1, st, _ = cv2.calcOpticalFlowPyrLK(prev_gray, cur_gray, p0, None, **lk)  # type: ignore[call-overload]
+    pb, st_b, _ = cv2.calcOpticalFlowPyrLK(cur_gray, prev_gray, p1, None, **lk)  # type: ignore[call-overload]
     ok = (st[:, 0] == 1) & (st_b[:, 0] == 1) & (np.linalg.norm(pb - p0, axis=-1)[:, 0] < cfg.fb_max_px)
     p0, p1 = p0[ok, 0].astype(np.float64), p1[ok, 0].astype(np.float64)  # [M, 2]
     h, w = prev_depth_m.shape

@@ -147,7 +147,7 @@ def read_jobs(sweep_dir: str | Path) -> tuple[dict[str, Any], list[dict[str, Any
             records.append(json.loads(ln))
         except json.JSONDecodeError:  # a line cut short by a killed job
             continue
-    header = next((r for r in records if "total" in r), {})
+    header: dict[str, Any] = next((r for r in records if "total" in r), {})
     return header, [r for r in records if "status" in r]
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pandas as pd
+from matplotlib.artist import Artist
 from matplotlib.patches import Patch
 
 from bench.report.figures.output import Warn, _save
@@ -134,7 +135,7 @@ def plot_per_keyframe(
         axes[row, 0].set_ylabel(label)
     for ax in axes.ravel():
         apply_fonts(ax)
-    handles = strategy_keys(panels, known)
+    handles: list[Artist] = list(strategy_keys(panels, known))  # line keys, then a Patch for the band
     if most_seeds >= 2:
         handles.append(key(f"line: mean of {most_seeds} seeds", "grey"))
         handles.append(Patch(color="grey", alpha=0.25, label="band: ± 1 std over seeds"))

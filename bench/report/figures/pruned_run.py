@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import torch
@@ -92,7 +93,7 @@ def coverage_norm(values: list[np.ndarray]) -> LogNorm:
 def draw_centres(ax, record: dict, norm: LogNorm, size: float = 3.0):
     """The keyframe in grey with the pruned centres on it, coloured by C_i; returns the scatter."""
     ax.imshow(record["image"].mean(axis=2), cmap="gray", vmin=0, vmax=255)
-    uv, c = record["uv"], np.maximum(record["coverage"], norm.vmin)
+    uv, c = record["uv"], np.maximum(record["coverage"], cast(float, norm.vmin))  # coverage_norm sets vmin
     order = np.argsort(c)  # the largest C_i on top
     points = ax.scatter(uv[order, 0], uv[order, 1], c=c[order], s=size, cmap=CMAP, norm=norm, linewidths=0)
     h, w = record["image"].shape[:2]

@@ -86,17 +86,17 @@ def plot_ratio(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
                 colour = strategy_colour(strategy, known)
                 numeric = sorted((k, v, e) for k, v, e, _ in points if k is not None and v is not None)
                 if len(numeric) > 1:
-                    x, y, e = (np.array(t, dtype=float) for t in zip(*numeric, strict=True))
-                    band(ax, x, y, e, colour)
+                    xs, ys, es = (np.array(t, dtype=float) for t in zip(*numeric, strict=True))
+                    band(ax, xs, ys, es, colour)
                 elif numeric:
                     k, v, e = numeric[0]
                     k += DODGE * (sorted(by_strategy).index(strategy) - (len(by_strategy) - 1) / 2)
                     ax.errorbar([k], [v], yerr=None if math.isnan(e) else [e], fmt="s", color=colour, capsize=3, ms=5)
-                elif len(points) == 1 and points[0][1] is not None:
-                    _, v, e, _ = points[0]
-                    ax.axhline(v, color=colour, ls=":", lw=1.3)
-                    if not math.isnan(e):
-                        ax.axhspan(v - e, v + e, color=colour, alpha=0.08, lw=0)
+                elif len(points) == 1 and (level := points[0][1]) is not None:
+                    spread = points[0][2]
+                    ax.axhline(level, color=colour, ls=":", lw=1.3)
+                    if not math.isnan(spread):
+                        ax.axhspan(level - spread, level + spread, color=colour, alpha=0.08, lw=0)
                 lost = [k for k, _, _, is_lost in points if is_lost and k is not None]
                 if lost:
                     any_lost = True
