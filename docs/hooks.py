@@ -26,7 +26,14 @@ def on_files(files: Files, config) -> Files:
             rel = path.relative_to(root).as_posix()
             # where the site puts it: as if it were docs/<rel> (README.md becomes the folder's index)
             site = File(rel, src_dir=str(root), dest_dir=config.site_dir, use_directory_urls=config.use_directory_urls)
-            files.append(File(f"../{rel}", src_dir=config.docs_dir, dest_dir=config.site_dir,
-                              use_directory_urls=config.use_directory_urls, dest_uri=site.dest_uri,
-                              inclusion=InclusionLevel.INCLUDED))  # a leading '..' is not a dotfile
+            files.append(
+                File(
+                    f"../{rel}",
+                    src_dir=config.docs_dir,
+                    dest_dir=config.site_dir,
+                    use_directory_urls=config.use_directory_urls,
+                    dest_uri=site.dest_uri,
+                    inclusion=InclusionLevel.INCLUDED,
+                )
+            )  # a leading '..' is not a dotfile
     return files

@@ -41,9 +41,16 @@ def long_drive_system(n: int, keyframes: int, frames: int, hw: tuple[int, int] =
     strategy = CheckedStrategy(load_strategy("none"), "none")
     system = System(SlamConfig(), K, h, w, strategy, 0.5, torch.device("cpu"))
     g = torch.Generator().manual_seed(0)
-    system.map.add({"means": torch.randn(n, 3, generator=g) * 20, "log_scales": torch.randn(n, 3, generator=g) - 3,
-                    "quats": torch.randn(n, 4, generator=g), "opacity_logits": torch.randn(n, generator=g),
-                    "colors": torch.rand(n, 3, generator=g)}, keyframe=0)  # fmt: skip
+    system.map.add(
+        {
+            "means": torch.randn(n, 3, generator=g) * 20,
+            "log_scales": torch.randn(n, 3, generator=g) - 3,
+            "quats": torch.randn(n, 4, generator=g),
+            "opacity_logits": torch.randn(n, generator=g),
+            "colors": torch.rand(n, 3, generator=g),
+        },
+        keyframe=0,
+    )
     loss = sum(p.square().sum() for p in system.map.params.values())
     loss.backward()
     system.map.optimizer.step()  # the Adam moments a mapping step leaves
@@ -59,13 +66,16 @@ def cost(n: int, keyframes: int, frames: int, repeats: int) -> tuple[float, floa
     system = long_drive_system(n, keyframes, frames)
     parts = RunSetup(None, frames, system.strategy, system, PhaseTimer(), MemoryProbe(torch.device("cpu")))
     row = dict.fromkeys(schema.KEYFRAME_COLUMNS, 0.0)
-    drive = LoopOutcome(timestamps_s=[0.1 * i for i in range(frames)],
-                        gt_c2w=[torch.eye(4, dtype=torch.float64)] * frames,
-                        windows=[{**row, "kf": i} for i in range(keyframes)])
+    drive = LoopOutcome(
+        timestamps_s=[0.1 * i for i in range(frames)],
+        gt_c2w=[torch.eye(4, dtype=torch.float64)] * frames,
+        windows=[{**row, "kf": i} for i in range(keyframes)],
+    )
     code = {"git_commit": "0" * 40, "git_dirty": False}
-    record = {"run": {"config_hash": "0" * 16, "code_version": code, "inputs": {}},
-              "checkpoint": {"every": 1, "written": 0, "mib_last": None, "write_s_total": 0.0,
-                             "resumed_from_frames": []}}  # fmt: skip
+    record = {
+        "run": {"config_hash": "0" * 16, "code_version": code, "inputs": {}},
+        "checkpoint": {"every": 1, "written": 0, "mib_last": None, "write_s_total": 0.0, "resumed_from_frames": []},
+    }
     times = []
     with tempfile.TemporaryDirectory() as tmp:
         for _ in range(repeats):

@@ -59,8 +59,9 @@ def compare(before: Path, after: Path) -> list[str]:
     diffs: list[str] = []
     a, b = _metrics(before), _metrics(after)
     for key in ("provenance", "determinism", "checkpoint"):
-        shape_a, shape_b = (_shape({k: v for k, v in (r.get(key) or {}).items() if k not in GIT_FIELDS})
-                            for r in (a, b))
+        shape_a, shape_b = (
+            _shape({k: v for k, v in (r.get(key) or {}).items() if k not in GIT_FIELDS}) for r in (a, b)
+        )
         if shape_a != shape_b:
             odd = sorted(k for k in set(shape_a) | set(shape_b) if shape_a.get(k) != shape_b.get(k))
             diffs.append(f"metrics.json {key}: keys or null values differ at {', '.join(odd)}")
@@ -102,9 +103,11 @@ def main(argv: list[str] | None = None) -> int:
     before, after = (Path(a) for a in args)
     diffs = compare(before, after)
     n_metrics = len(set(_metrics(before).get("metrics", {})) - VOLATILE_METRICS)
-    print(f"{before} vs {after}: {n_metrics} metrics, {len(_keyframes(before))} keyframe rows, "
-          f"{sum((before / n).exists() for n in BYTE_FILES)} files byte for byte; "
-          + ("identical" if not diffs else f"{len(diffs)} differences"))
+    print(
+        f"{before} vs {after}: {n_metrics} metrics, {len(_keyframes(before))} keyframe rows, "
+        f"{sum((before / n).exists() for n in BYTE_FILES)} files byte for byte; "
+        + ("identical" if not diffs else f"{len(diffs)} differences")
+    )
     for line in diffs:
         print("  " + line)
     return 1 if diffs else 0

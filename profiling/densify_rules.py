@@ -39,8 +39,10 @@ def rule_shares(system: System, depth: torch.Tensor, w2c: torch.Tensor) -> str:
     sil = (out.alpha < cfg.densify_silhouette) & valid
     dep = (err > cfg.densify_depth_err_mult * med) & (out.depth > depth) & valid
     n = int(valid.sum())
-    line = (f"sil<{cfg.densify_silhouette} {float(sil.sum()) / n:.4f} depth_rule {float(dep.sum()) / n:.4f} "
-            f"depth_thr_m {float(cfg.densify_depth_err_mult * med):.2f}")
+    line = (
+        f"sil<{cfg.densify_silhouette} {float(sil.sum()) / n:.4f} depth_rule {float(dep.sum()) / n:.4f} "
+        f"depth_thr_m {float(cfg.densify_depth_err_mult * med):.2f}"
+    )
     if cfg.densify_color_err > 0:
         col = ((out.color - system.keyframes[-1].rgb).abs().mean(-1) > cfg.densify_color_err) & valid
         line += f" color_rule {float(col.sum()) / n:.4f}"
@@ -56,15 +58,16 @@ def main(overrides: list[str]) -> None:
     def probed(self: System, rgb: torch.Tensor, depth: torch.Tensor, w2c: torch.Tensor, kf_idx: int) -> int:
         shares = rule_shares(self, depth, w2c) if len(self.map) else "first keyframe"
         added = densify(self, rgb, depth, w2c, kf_idx)
-        print(f"kf {kf_idx} frame {self.keyframes[-1].index} added {added} n_gaussians {len(self.map)} {shares}",
-              flush=True)
+        print(
+            f"kf {kf_idx} frame {self.keyframes[-1].index} added {added} n_gaussians {len(self.map)} {shares}",
+            flush=True,
+        )
         return added
 
     System._densify = probed
     with repeatable(cfg.seed, cfg.threads, cfg.determinism, torch.device("cpu")):
         seq = open_seq(cfg)
-        system = System(slam, seq.K, seq.height, seq.width, load_strategy("none", None), cfg.prune,
-                        torch.device("cpu"))
+        system = System(slam, seq.K, seq.height, seq.width, load_strategy("none", None), cfg.prune, torch.device("cpu"))
         for i in range(len(seq)):
             system.step(seq[i])
 

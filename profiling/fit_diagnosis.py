@@ -76,8 +76,10 @@ def main() -> None:
     n = min(len(seq), args.frames)
     device = torch.device("cpu")
     curve_at = sorted(int(c) for c in args.curve.split(",") if c.strip())
-    print(f"# fit diagnosis: {seq.name} {seq.width}x{seq.height}, {n} frames, preset {cfg.slam.name}, "
-          f"overrides: {' '.join(overrides)}")
+    print(
+        f"# fit diagnosis: {seq.name} {seq.width}x{seq.height}, {n} frames, preset {cfg.slam.name}, "
+        f"overrides: {' '.join(overrides)}"
+    )
 
     # convergence curve: keyframe 0 alone, mapped for the largest count, scored along the way
     with repeatable(cfg.seed, cfg.threads, cfg.determinism, device):
@@ -117,8 +119,17 @@ def main() -> None:
             if res.is_keyframe:
                 d = res.diag
                 masked = d["kf_psnr_depth_db"] - 10 * math.log10(d["kf_depth_frac"]) if d["kf_depth_frac"] else math.nan
-                kf_rows.append((res.keyframe_index, i, d["kf_psnr_db"], d["kf_psnr_depth_db"],
-                                d["kf_psnr_nodepth_db"], masked, len(system.map)))
+                kf_rows.append(
+                    (
+                        res.keyframe_index,
+                        i,
+                        d["kf_psnr_db"],
+                        d["kf_psnr_depth_db"],
+                        d["kf_psnr_nodepth_db"],
+                        masked,
+                        len(system.map),
+                    )
+                )
         wall = time.perf_counter() - t0
         system.refine(cfg.slam.refine_iters)  # as a run does before it evaluates (0 = none)
         stats = {"kf": [], "between": []}
@@ -131,8 +142,13 @@ def main() -> None:
                 sq = (pred - rgb).pow(2).mean(-1)
                 has = depth > 0
                 frac = float(has.float().mean())
-                row = (psnr(sq), psnr(sq, has), psnr(sq, ~has), psnr(sq, has) - 10 * math.log10(max(frac, 1e-9)),
-                       affine_gain_db(pred, rgb, has))
+                row = (
+                    psnr(sq),
+                    psnr(sq, has),
+                    psnr(sq, ~has),
+                    psnr(sq, has) - 10 * math.log10(max(frac, 1e-9)),
+                    affine_gain_db(pred, rgb, has),
+                )
                 stats["kf" if frame.index in kf_frames else "between"].append(row)
 
     print(f"\nrun: {n} frames in {wall:.1f} s (SLAM loop, fit diagnostics included), {len(system.map)} Gaussians")
@@ -140,8 +156,10 @@ def main() -> None:
     print("| kf | frame | whole image | with depth | without depth | depth-masked (SplaTAM) | Gaussians |")
     print("|---|---|---|---|---|---|---|")
     for r in kf_rows:
-        print(f"| {r[0]} | {r[1]} | {r[2]:.2f} | {r[3]:.2f} | "
-              f"{'-' if r[4] is None else f'{r[4]:.2f}'} | {r[5]:.2f} | {r[6]} |")
+        print(
+            f"| {r[0]} | {r[1]} | {r[2]:.2f} | {r[3]:.2f} | "
+            f"{'-' if r[4] is None else f'{r[4]:.2f}'} | {r[5]:.2f} | {r[6]} |"
+        )
     print("\n## keyframe 0 against mapping iterations (alone, before any other frame)\n")
     print("| iterations | whole image dB | with depth dB | s |")
     print("|---|---|---|---|")
@@ -155,11 +173,16 @@ def main() -> None:
     print("\n## final map at the estimated poses (mean PSNR dB per frame)\n")
     print("| frames | n | whole image | with depth | without depth | depth-masked | + affine brightness (with depth) |")
     print("|---|---|---|---|---|---|---|")
-    for name, rows in (("keyframes", stats["kf"]), ("between keyframes", stats["between"]),
-                       ("all", stats["kf"] + stats["between"])):
+    for name, rows in (
+        ("keyframes", stats["kf"]),
+        ("between keyframes", stats["between"]),
+        ("all", stats["kf"] + stats["between"]),
+    ):
         if rows:
-            print(f"| {name} | {len(rows)} | {mean(rows, 0):.2f} | {mean(rows, 1):.2f} | {mean(rows, 2):.2f} | "
-                  f"{mean(rows, 3):.2f} | +{mean(rows, 4):.2f} |")
+            print(
+                f"| {name} | {len(rows)} | {mean(rows, 0):.2f} | {mean(rows, 1):.2f} | {mean(rows, 2):.2f} | "
+                f"{mean(rows, 3):.2f} | +{mean(rows, 4):.2f} |"
+            )
 
     all_rows = stats["kf"] + stats["between"]
     own_dep = sum(r[3] for r in kf_rows) / len(kf_rows)
@@ -167,16 +190,25 @@ def main() -> None:
     print("\n## each cause's dB (the whole-image PSNR of all frames is the starting point)\n")
     print("| cause | dB | read as |")
     print("|---|---|---|")
-    print(f"| pixels without depth | {mean(all_rows, 1) - mean(all_rows, 0):+.2f} | "
-          "with-depth PSNR minus whole-image |")
-    print(f"| protocol (SplaTAM's depth mask) | {mean(all_rows, 3) - mean(all_rows, 0):+.2f} | "
-          "masked whole-image PSNR minus whole-image |")
-    print(f"| frames between keyframes | {mean(stats['between'], 1) - mean(stats['kf'], 1):+.2f} | "
-          "with depth, between minus keyframes (final map) |")
-    print(f"| later mapping (keyframes revisited) | {mean(stats['kf'], 1) - own_dep:+.2f} | "
-          "with depth, keyframes in the final map minus right after their own mapping |")
-    print(f"| iterations (keyframe 0 to {curve_at[-1]}) | {curve_gain:+.2f} | with depth, at {curve_at[-1]} "
-          f"iterations minus at the preset's {cfg.slam.mapping_iters} |")
+    print(
+        f"| pixels without depth | {mean(all_rows, 1) - mean(all_rows, 0):+.2f} | with-depth PSNR minus whole-image |"
+    )
+    print(
+        f"| protocol (SplaTAM's depth mask) | {mean(all_rows, 3) - mean(all_rows, 0):+.2f} | "
+        "masked whole-image PSNR minus whole-image |"
+    )
+    print(
+        f"| frames between keyframes | {mean(stats['between'], 1) - mean(stats['kf'], 1):+.2f} | "
+        "with depth, between minus keyframes (final map) |"
+    )
+    print(
+        f"| later mapping (keyframes revisited) | {mean(stats['kf'], 1) - own_dep:+.2f} | "
+        "with depth, keyframes in the final map minus right after their own mapping |"
+    )
+    print(
+        f"| iterations (keyframe 0 to {curve_at[-1]}) | {curve_gain:+.2f} | with depth, at {curve_at[-1]} "
+        f"iterations minus at the preset's {cfg.slam.mapping_iters} |"
+    )
     print(f"| exposure (affine per frame) | {mean(all_rows, 4):+.2f} | with depth, best affine brightness |")
 
 

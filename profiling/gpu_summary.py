@@ -23,15 +23,18 @@ def summarize(run: Path) -> str:
     rows = list(csv.DictReader((run / "keyframes.csv").open())) if (run / "keyframes.csv").is_file() else []
     col = "cuda_alloc_peak_mib" if rows and rows[0].get("cuda_alloc_peak_mib") else "torch_live_peak_mib"
     picks = [rows[i] for i in sorted({0, len(rows) // 2, len(rows) - 1})] if rows else []
-    peaks = " ".join(f"kf{r['kf']}:{_fmt(r.get(col), '.0f')}/{_fmt(r.get('cuda_reserved_peak_mib'), '.0f')}"
-                     for r in picks)
-    return (f"{run.name}: status={m.get('status', 'n/a')} ATE={_fmt(m.get('ate_rmse_m'), '.3f')}m "
-            f"PSNR={_fmt(m.get('psnr_db'), '.2f')}dB FPS={_fmt(m.get('fps'), '.3f')} "
-            f"wall={_fmt(m.get('wall_s'), '.0f')}s "
-            f"frames={m.get('num_frames', 'n/a')} kfs={len(rows)} G_final={m.get('gaussians_final', 'n/a')} "
-            f"peak_{col}(alloc/reserved MiB, first/mid/last)=[{peaks}] "
-            f"max_alloc={_fmt(m.get('cuda_alloc_peak_mib'), '.0f')} "
-            f"max_reserved={_fmt(m.get('cuda_reserved_peak_mib'), '.0f')}")
+    peaks = " ".join(
+        f"kf{r['kf']}:{_fmt(r.get(col), '.0f')}/{_fmt(r.get('cuda_reserved_peak_mib'), '.0f')}" for r in picks
+    )
+    return (
+        f"{run.name}: status={m.get('status', 'n/a')} ATE={_fmt(m.get('ate_rmse_m'), '.3f')}m "
+        f"PSNR={_fmt(m.get('psnr_db'), '.2f')}dB FPS={_fmt(m.get('fps'), '.3f')} "
+        f"wall={_fmt(m.get('wall_s'), '.0f')}s "
+        f"frames={m.get('num_frames', 'n/a')} kfs={len(rows)} G_final={m.get('gaussians_final', 'n/a')} "
+        f"peak_{col}(alloc/reserved MiB, first/mid/last)=[{peaks}] "
+        f"max_alloc={_fmt(m.get('cuda_alloc_peak_mib'), '.0f')} "
+        f"max_reserved={_fmt(m.get('cuda_reserved_peak_mib'), '.0f')}"
+    )
 
 
 if __name__ == "__main__":

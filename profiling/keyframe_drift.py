@@ -48,15 +48,28 @@ def main() -> None:
         def psnr_kf0(params: dict[str, torch.Tensor], sel: torch.Tensor | None = None) -> float:
             m = torch.ones(len(params["means"]), dtype=torch.bool) if sel is None else sel
             with torch.no_grad():
-                out = rasterize(params["means"][m], params["log_scales"][m], params["quats"][m],
-                                torch.sigmoid(params["opacity_logits"][m]), params["colors"][m], gt[0], s.K, s.W,
-                                s.H, depth_far_m=cfg.slam.depth_far_m, backend=cfg.slam.raster_backend)
+                out = rasterize(
+                    params["means"][m],
+                    params["log_scales"][m],
+                    params["quats"][m],
+                    torch.sigmoid(params["opacity_logits"][m]),
+                    params["colors"][m],
+                    gt[0],
+                    s.K,
+                    s.W,
+                    s.H,
+                    depth_far_m=cfg.slam.depth_far_m,
+                    backend=cfg.slam.raster_backend,
+                )
             return region_psnr_db((out.color.clamp(0, 1) - rgb0).pow(2).mean(-1), has)
 
-        print(f"# {seq.name} {seq.width}x{seq.height}, preset {cfg.slam.name}, ground-truth poses; keyframe 0's "
-              "PSNR dB over its pixels with depth")
-        print("| after keyframe | frame | whole map | keyframe 0's Gaussians now | as after its own mapping "
-              "| Gaussians |")
+        print(
+            f"# {seq.name} {seq.width}x{seq.height}, preset {cfg.slam.name}, ground-truth poses; keyframe 0's "
+            "PSNR dB over its pixels with depth"
+        )
+        print(
+            "| after keyframe | frame | whole map | keyframe 0's Gaussians now | as after its own mapping | Gaussians |"
+        )
         print("|---|---|---|---|---|---|")
         snap = None
         for k, frame in enumerate(frames):
@@ -67,8 +80,11 @@ def main() -> None:
             if snap is None:
                 snap = {name: p.clone() for name, p in now.items()}
             born0 = s.map.birth_kf == 0
-            print(f"| {r.keyframe_index} | {k} | {psnr_kf0(now):.2f} | {psnr_kf0(now, born0):.2f} | "
-                  f"{psnr_kf0(snap):.2f} | {len(s.map)} |", flush=True)
+            print(
+                f"| {r.keyframe_index} | {k} | {psnr_kf0(now):.2f} | {psnr_kf0(now, born0):.2f} | "
+                f"{psnr_kf0(snap):.2f} | {len(s.map)} |",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

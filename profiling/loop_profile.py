@@ -108,8 +108,13 @@ class Profile:
 
             setattr(sysc, name, wrapped)
 
-        for name, phase in (("_track", "tracking"), ("_map", "mapping"), ("_densify", "densification"),
-                            ("_prune", "pruning"), ("refine", "refine")):
+        for name, phase in (
+            ("_track", "tracking"),
+            ("_map", "mapping"),
+            ("_densify", "densification"),
+            ("_prune", "pruning"),
+            ("refine", "refine"),
+        ):
             phased(name, phase)
         orig_eval = run_mod.evaluate
 
@@ -183,8 +188,13 @@ def warm_up() -> None:
     n = 64
     g = torch.Generator().manual_seed(0)
     means = torch.cat([torch.rand(n, 2, generator=g) - 0.5, torch.full((n, 1), 3.0)], 1)
-    params = [means, torch.full((n, 3), -3.0), torch.tensor([1.0, 0, 0, 0]).repeat(n, 1), torch.full((n,), 0.8),
-              torch.rand(n, 3, generator=g)]
+    params = [
+        means,
+        torch.full((n, 3), -3.0),
+        torch.tensor([1.0, 0, 0, 0]).repeat(n, 1),
+        torch.full((n,), 0.8),
+        torch.rand(n, 3, generator=g),
+    ]
     params = [p.requires_grad_(True) for p in params]
     K = torch.tensor([[40.0, 0, 32], [0, 40.0, 32], [0, 0, 1]])
     for stats in (False, True):
@@ -203,9 +213,11 @@ def profile(prof: Profile, overrides: list[str]) -> str:
         res = run(cfg, Path(tmp) / "run")
         wall = time.perf_counter() - t0
     m = res.metrics
-    head = (f"status={res.status} frames={m.get('num_frames')} fps={m.get('fps')} wall_s={wall:.1f} "
-            f"ate_rmse_m={m.get('ate_rmse_m')} psnr_db={m.get('psnr_db')} "
-            f"gaussians_final={m.get('gaussians_final')}")
+    head = (
+        f"status={res.status} frames={m.get('num_frames')} fps={m.get('fps')} wall_s={wall:.1f} "
+        f"ate_rmse_m={m.get('ate_rmse_m')} psnr_db={m.get('psnr_db')} "
+        f"gaussians_final={m.get('gaussians_final')}"
+    )
     import numba
 
     try:

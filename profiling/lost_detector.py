@@ -47,8 +47,15 @@ def main(overrides: list[str], out_csv: Path | None = None, kick_every: int = 25
     with repeatable(cfg.seed, cfg.threads, cfg.determinism, torch.device("cpu")):
         seq = open_seq(cfg)
         name = cfg.strategy.name if cfg.strategy else "none"
-        system = System(slam, seq.K, seq.height, seq.width, load_strategy(name, cfg.strategy.params if cfg.strategy
-                                                                            else None), cfg.prune, torch.device("cpu"))
+        system = System(
+            slam,
+            seq.K,
+            seq.height,
+            seq.width,
+            load_strategy(name, cfg.strategy.params if cfg.strategy else None),
+            cfg.prune,
+            torch.device("cpu"),
+        )
         gt0 = None
         rows, bad, bad_depth, bad_both = [], 0, 0, 0
         for i in range(min(len(seq), cfg.max_frames) if cfg.max_frames else len(seq)):
@@ -62,18 +69,27 @@ def main(overrides: list[str], out_csv: Path | None = None, kick_every: int = 25
             gt0 = gt if gt0 is None else gt0
             est_c2w = inverse(system.poses[-1].double()).numpy()
             err = float(np.linalg.norm(est_c2w[:3, 3] - (np.linalg.inv(gt0) @ gt)[:3, 3]))
-            res, sil, dres = (system.track_log[-1][1:] if i else (0.0, 1.0, 0.0))
+            res, sil, dres = system.track_log[-1][1:] if i else (0.0, 1.0, 0.0)
             bad = bad + 1 if res > threshold else 0
             bad_depth = bad_depth + 1 if dres > depth_threshold else 0
             bad_both = bad_both + 1 if res > threshold or dres > depth_threshold else 0
-            rows.append({"frame": i, "gt_err_m": round(err, 4), "residual": round(res, 4),
-                         "depth_residual_m": round(dres, 4), "depth_threshold_m": round(depth_threshold, 4),
-                         "sil_frac": round(sil, 4), "would_fire": int(bad >= patience),
-                         "would_fire_depth": int(bad_depth >= patience), "would_fire_both": int(bad_both >= patience),
-                         "n_gaussians": len(system.map),
-                         "kicked_residual": None if kicked is None else round(kicked[0], 4),
-                         "kicked_depth_residual_m": None if kicked is None else round(kicked[2], 4),
-                         "kicked_moved_m": None if kicked is None else round(kicked[1], 4)})
+            rows.append(
+                {
+                    "frame": i,
+                    "gt_err_m": round(err, 4),
+                    "residual": round(res, 4),
+                    "depth_residual_m": round(dres, 4),
+                    "depth_threshold_m": round(depth_threshold, 4),
+                    "sil_frac": round(sil, 4),
+                    "would_fire": int(bad >= patience),
+                    "would_fire_depth": int(bad_depth >= patience),
+                    "would_fire_both": int(bad_both >= patience),
+                    "n_gaussians": len(system.map),
+                    "kicked_residual": None if kicked is None else round(kicked[0], 4),
+                    "kicked_depth_residual_m": None if kicked is None else round(kicked[2], 4),
+                    "kicked_moved_m": None if kicked is None else round(kicked[1], 4),
+                }
+            )
             print(",".join(str(v) for v in rows[-1].values()), flush=True)
             if out_csv:  # rewritten every frame: a stopped run keeps what it saw
                 with open(out_csv, "w", newline="") as fh:
@@ -85,9 +101,16 @@ def main(overrides: list[str], out_csv: Path | None = None, kick_every: int = 25
 def kick_residual(system: System, frame) -> tuple[float, float, float]:
     """(colour residual, how far the tracked pose ends from the unkicked start, depth residual m) after tracking
     ``frame`` from the usual start moved sideways by KICK_M; the system's state is left as it was."""
-    state = (list(system.poses), list(system.init_source), system._prev_obs, len(system.track_log),
-             system._ransac_rng.bit_generator.state, {k: v.clone() for k, v in system.map.state.items()},
-             list(system.lost.depth_recent), system.lost.bad_frames)
+    state = (
+        list(system.poses),
+        list(system.init_source),
+        system._prev_obs,
+        len(system.track_log),
+        system._ransac_rng.bit_generator.state,
+        {k: v.clone() for k, v in system.map.state.items()},
+        list(system.lost.depth_recent),
+        system.lost.bad_frames,
+    )
     rgb, depth = frame.rgb, frame.depth_m
     depth = torch.where((depth > 0) & (depth < system.cfg.max_depth_m), depth, torch.zeros_like(depth))
     system._gray = None  # the plain constant-velocity start: no front-end to pull it back
@@ -98,7 +121,7 @@ def kick_residual(system: System, frame) -> tuple[float, float, float]:
     moved = float((inverse(w2c)[:3, 3] - inverse(start)[:3, 3]).norm())
     residual, depth_residual = system.track_log[-1][1], system.track_log[-1][3]
     system.poses, system.init_source, system._prev_obs = state[0], state[1], state[2]
-    del system.track_log[state[3]:]
+    del system.track_log[state[3] :]
     system._ransac_rng.bit_generator.state = state[4]
     system.map.state.update(state[5])  # the tracking-gradient accumulators the kicked frame added to
     system.lost.depth_recent, system.lost.bad_frames = state[6], state[7]  # the depth check's baseline and count
@@ -131,8 +154,13 @@ def plot(csv_path: Path, png_path: Path, title: str) -> None:
     ax1.plot(f, col("depth_residual_m"), color="tab:blue", label="depth L1 on confident pixels [m] (lost_check=depth)")
     thr = col("depth_threshold_m")
     ax1.plot(f, np.where(np.isfinite(thr), thr, np.nan), "--", color="tab:blue", lw=1, label="its threshold")
-    ax1.scatter(f[kicked], col("kicked_depth_residual_m")[kicked], marker="x", color="tab:red",
-                label="after a 1 m sideways kick")
+    ax1.scatter(
+        f[kicked],
+        col("kicked_depth_residual_m")[kicked],
+        marker="x",
+        color="tab:red",
+        label="after a 1 m sideways kick",
+    )
     ax1.set_ylabel("depth L1 [m]")
     ax1.legend(loc="upper left", fontsize=8)
     ax2.plot(f, col("residual"), color="tab:orange", label="colour L1 on confident pixels (lost_check=color)")
@@ -158,8 +186,12 @@ def plot_compare(runs: list[tuple[str, Path]], png_path: Path, title: str) -> No
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    panels = (("gt_err_m", "pose error [m]\n(unaligned)"), ("depth_residual_m", "depth L1 [m]\n(confident pixels)"),
-              ("residual", "colour L1\n(confident pixels)"), ("sil_frac", "confident share\nof pixels"))
+    panels = (
+        ("gt_err_m", "pose error [m]\n(unaligned)"),
+        ("depth_residual_m", "depth L1 [m]\n(confident pixels)"),
+        ("residual", "colour L1\n(confident pixels)"),
+        ("sil_frac", "confident share\nof pixels"),
+    )
     fig, axes = plt.subplots(len(panels), 1, figsize=(9, 9), sharex=True)
     colors = plt.get_cmap("tab10").colors
     for i, (label, path) in enumerate(runs):

@@ -62,11 +62,14 @@ def scene(n: int, width: int, height: int, device: torch.device, seed: int = 0, 
 
 def old_kernels(rev: str):
     """bench/slam/raster_fused.py as of ``rev``, as a module of its own (numba caches it beside the copy)."""
-    shown = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:bench/slam/raster_fused.py"],
-                           capture_output=True, text=True)
+    shown = subprocess.run(
+        ["git", "-C", str(ROOT), "show", f"{rev}:bench/slam/raster_fused.py"], capture_output=True, text=True
+    )
     if shown.returncode != 0:
-        sys.exit(f"--old {rev}: expected the kernels as one file, bench/slam/raster_fused.py, found none at {rev} "
-                 "(the package bench/slam/raster_fused/ cannot be loaded beside today's)")
+        sys.exit(
+            f"--old {rev}: expected the kernels as one file, bench/slam/raster_fused.py, found none at {rev} "
+            "(the package bench/slam/raster_fused/ cannot be loaded beside today's)"
+        )
     src = shown.stdout
     folder = Path.home() / ".cache" / "pocketbench" / "old_kernels"
     folder.mkdir(parents=True, exist_ok=True)
@@ -85,6 +88,7 @@ def old_kernels(rev: str):
         numba.config.THREADING_LAYER = "default"
     if not hasattr(mod, "in_view"):  # today's raster.py asks the kernels which Gaussians are in view
         from bench.slam.raster_fused import in_view
+
         mod.in_view = in_view
     return mod
 
@@ -105,8 +109,15 @@ def kernels(module):
 def pairs(params, K, w: int, h: int) -> int:
     """Contributing (pixel, Gaussian) pairs of the view (the fused backend's hit counts)."""
     with torch.no_grad():
-        out = rasterize(*params, torch.eye(4, device=K.device), K, w, h, stats=True,
-                        backend="fused" if K.device.type == "cpu" else "torch")
+        out = rasterize(
+            *params,
+            torch.eye(4, device=K.device),
+            K,
+            w,
+            h,
+            stats=True,
+            backend="fused" if K.device.type == "cpu" else "torch",
+        )
     return int(out.hit_count.sum())
 
 
@@ -149,8 +160,12 @@ def main() -> None:
     ap.add_argument("--backends", default=None, help="comma list; default torch,fused on cpu, torch on cuda")
     ap.add_argument("--scenes", default="iso,aniso", help="comma list of iso, aniso")
     ap.add_argument("--points", default=DEFAULT_POINTS, help="comma list of NxWxH")
-    ap.add_argument("--torch-max-n", type=int, default=20_000,
-                    help="skip the torch backend above this N (it needs GiBs at 50k Gaussians)")
+    ap.add_argument(
+        "--torch-max-n",
+        type=int,
+        default=20_000,
+        help="skip the torch backend above this N (it needs GiBs at 50k Gaussians)",
+    )
     ap.add_argument("--old", default=None, metavar="REV", help="also time the fused kernels of git revision REV")
     args = ap.parse_args()
     device = torch.device(args.device)
@@ -160,8 +175,10 @@ def main() -> None:
     if old is not None and "fused" in backends:
         backends.append(f"fused@{args.old}")
     print(f"device={device} threads={torch.get_num_threads()} repeats={args.repeats} (times: min over repeats)")
-    head = (f"{'scene':>5} {'N':>6} {'W x H':>8} {'backend':>14} {'fwd_ms':>7} {'bwd_ms':>7} {'pairs':>8} "
-            f"{'ns_pair':>7} {'peak_mib':>8} {'B_per_g':>7} {'vs_torch':>8} {'vs_old':>6}")
+    head = (
+        f"{'scene':>5} {'N':>6} {'W x H':>8} {'backend':>14} {'fwd_ms':>7} {'bwd_ms':>7} {'pairs':>8} "
+        f"{'ns_pair':>7} {'peak_mib':>8} {'B_per_g':>7} {'vs_torch':>8} {'vs_old':>6}"
+    )
     print(head)
     for kind in args.scenes.split(","):
         for n, w, h in points:
@@ -174,8 +191,10 @@ def main() -> None:
                 with kernels(old if be.startswith("fused@") else None):
                     res[be] = measure(be.split("@")[0], params, K, w, h, device, args.repeats)
                 f, b, peak = res[be]
-                line = (f"{kind:>5} {n:>6} {f'{w}x{h}':>8} {be:>14} {f:>7.1f} {b:>7.1f} {n_pairs:>8} "
-                        f"{1e6 * (f + b) / max(n_pairs, 1):>7.1f} {peak:>8.1f} {peak * 2**20 / n:>7.0f}")
+                line = (
+                    f"{kind:>5} {n:>6} {f'{w}x{h}':>8} {be:>14} {f:>7.1f} {b:>7.1f} {n_pairs:>8} "
+                    f"{1e6 * (f + b) / max(n_pairs, 1):>7.1f} {peak:>8.1f} {peak * 2**20 / n:>7.0f}"
+                )
                 if be != "torch" and "torch" in res:
                     tf, tb, _ = res["torch"]
                     line += f" {(tf + tb) / (f + b):>8.2f}"

@@ -62,8 +62,10 @@ def main() -> None:
     seq = open_seq(to_run_config(compose(list(args.overrides))))
     mask, source = revisit_mask(seq.gt_poses.numpy(), args.radius, args.angle, args.gap)
     found = spans(mask)
-    print(f"{seq.name}: {int(mask.sum())} of {len(mask)} frames revisit (within {args.radius} m and "
-          f"{args.angle:g} deg of a frame >= {args.gap} earlier); spans of >= 5 frames:")
+    print(
+        f"{seq.name}: {int(mask.sum())} of {len(mask)} frames revisit (within {args.radius} m and "
+        f"{args.angle:g} deg of a frame >= {args.gap} earlier); spans of >= 5 frames:"
+    )
     for a, b in found:
         print(f"  frames {a}-{b}, first revisiting frame {source[a]}")
 

@@ -53,9 +53,19 @@ def score_run(run_dir: Path, protocols: tuple[str, ...] = PROTOCOLS) -> list[dic
     with torch.no_grad():
         for i in range(0, len(est), max(1, cfg.eval.every)):
             w2c = torch.from_numpy(np.linalg.inv(c2w[i])).float()
-            out = rasterize(arrays["means"], arrays["log_scales"], arrays["quats"],
-                            torch.sigmoid(arrays["opacity_logits"]), arrays["colors"], w2c, seq.K.float(),
-                            seq.width, seq.height, depth_far_m=cfg.slam.depth_far_m, backend=cfg.slam.raster_backend)
+            out = rasterize(
+                arrays["means"],
+                arrays["log_scales"],
+                arrays["quats"],
+                torch.sigmoid(arrays["opacity_logits"]),
+                arrays["colors"],
+                w2c,
+                seq.K.float(),
+                seq.width,
+                seq.height,
+                depth_far_m=cfg.slam.depth_far_m,
+                backend=cfg.slam.raster_backend,
+            )
             pred = out.color.clamp(0, 1)
             frame = seq[i]
             for protocol in protocols:
@@ -65,9 +75,19 @@ def score_run(run_dir: Path, protocols: tuple[str, ...] = PROTOCOLS) -> list[dic
     rows = []
     for protocol in protocols:
         m = mean_metrics(frames[protocol])
-        rows.append({"run": str(run_dir), "protocol": protocol, "psnr_db": m.get("psnr_db"), "ssim": m.get("ssim"),
-                     "ms_ssim": m.get("ms_ssim"), "mask_frac": m.get("mask_frac"), "eval_frames": len(frames[protocol]),
-                     "stored_protocol": stored.get("eval_protocol", "full"), "stored_psnr_db": stored.get("psnr_db")})
+        rows.append(
+            {
+                "run": str(run_dir),
+                "protocol": protocol,
+                "psnr_db": m.get("psnr_db"),
+                "ssim": m.get("ssim"),
+                "ms_ssim": m.get("ms_ssim"),
+                "mask_frac": m.get("mask_frac"),
+                "eval_frames": len(frames[protocol]),
+                "stored_protocol": stored.get("eval_protocol", "full"),
+                "stored_psnr_db": stored.get("psnr_db"),
+            }
+        )
     return rows
 
 
@@ -88,9 +108,11 @@ def main() -> None:
     print("| run | protocol | PSNR dB | SSIM | MS-SSIM | pixels scored | frames | stored (protocol, PSNR) |")
     print("|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {Path(r['run']).name} | {r['protocol']} | {fmt(r['psnr_db'], '.2f')} | {fmt(r['ssim'], '.4f')} | "
-              f"{fmt(r['ms_ssim'], '.4f')} | {fmt(r['mask_frac'], '.3f')} | {r['eval_frames']} | "
-              f"{r['stored_protocol']}, {fmt(r['stored_psnr_db'], '.2f')} |")
+        print(
+            f"| {Path(r['run']).name} | {r['protocol']} | {fmt(r['psnr_db'], '.2f')} | {fmt(r['ssim'], '.4f')} | "
+            f"{fmt(r['ms_ssim'], '.4f')} | {fmt(r['mask_frac'], '.3f')} | {r['eval_frames']} | "
+            f"{r['stored_protocol']}, {fmt(r['stored_psnr_db'], '.2f')} |"
+        )
     if args.csv:
         with args.csv.open("w", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=list(rows[0]))

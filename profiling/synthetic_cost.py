@@ -43,8 +43,10 @@ def main() -> None:
     ap.add_argument("--height", type=int, default=192)
     ap.add_argument("--no-brute-force", action="store_true", help="time the culled cast only")
     args = ap.parse_args()
-    print(f"{'route':9} {'frames':>6} {'boxes':>6} {'culled s':>9} {'brute s':>9} {'culled pairs':>13} "
-          f"{'brute pairs':>13} {'same pixels':>11}")
+    print(
+        f"{'route':9} {'frames':>6} {'boxes':>6} {'culled s':>9} {'brute s':>9} {'culled pairs':>13} "
+        f"{'brute pairs':>13} {'same pixels':>11}"
+    )
     for route in args.routes:
         for n in args.frames:
             seq = open_sequence({"route": route, "n_frames": n, "width": args.width, "height": args.height})
@@ -59,8 +61,11 @@ def main() -> None:
                 rows.append((t_c, w_c, t_b, w_b, same))
             med = [statistics.median(r[k] for r in rows) for k in range(4)]
             same = "-" if args.no_brute_force else str(all(r[4] for r in rows))
-            print(f"{route:9} {n:6d} {len(seq.boxes):6d} {med[0]:9.3f} {med[2]:9.3f} {med[1]:13.3e} {med[3]:13.3e} "
-                  f"{same:>11}", flush=True)
+            print(
+                f"{route:9} {n:6d} {len(seq.boxes):6d} {med[0]:9.3f} {med[2]:9.3f} {med[1]:13.3e} {med[3]:13.3e} "
+                f"{same:>11}",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

@@ -72,8 +72,13 @@ def make_venv(path: Path) -> Path:
 
     subprocess.run([sys.executable, "-m", "venv", str(path)], check=True, timeout=300)
     python = path / "bin" / "python"
-    target = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-                            check=True, capture_output=True, text=True, timeout=60).stdout.strip()  # fmt: skip
+    target = subprocess.run(
+        [str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    ).stdout.strip()
     dirs = [*site.getsitepackages(), site.getusersitepackages()]
     (Path(target) / "_outer_site.pth").write_text("".join(f"{d}\n" for d in dirs if Path(d).is_dir()))
     return python

@@ -75,8 +75,9 @@ SETTING_CASES: dict[str, Case] = {
     "keep-ratio-zero": Case(["prune.keep_ratio=0"], ["prune.keep_ratio", "found 0"]),
     "keep-ratio-text": Case(["prune.keep_ratio=abc"], ["prune.keep_ratio", "found 'abc'"]),
     "prune-target-unknown": Case(["prune.target=count"], ["prune.target: expected one of ratio, absolute", "'count'"]),
-    "prune-absolute-no-count": Case(["prune.target=absolute"],
-                                    ["prune.n_target: expected an integer >= 0 with prune.target=absolute"]),
+    "prune-absolute-no-count": Case(
+        ["prune.target=absolute"], ["prune.n_target: expected an integer >= 0 with prune.target=absolute"]
+    ),
     "prune-every-unknown": Case(["prune.every=second"], ["prune.every: expected one of keyframe, frame", "'second'"]),
     "threads-text": Case(["threads=abc"], ["threads: expected an integer >= 1 or null", "found 'abc'"]),
     "threads-negative": Case(["threads=-1"], ["threads", "found -1"]),
@@ -90,49 +91,70 @@ SETTING_CASES: dict[str, Case] = {
     "eval-align-unknown": Case(["eval.ate_align=foo"], ["eval.ate_align: expected one of se3, sim3, none", "'foo'"]),
     "eval-max-diff-zero": Case(["eval.max_diff_s=0"], ["eval.max_diff_s: expected a number > 0", "found 0"]),
     "eval-unknown-key": Case(["+eval.evry=2"], ["eval has no setting 'evry'", "every"]),
-    "lpips-weights-missing": Case(["eval.lpips_weights={TMP}/nope.pth"],
-                                  ["eval.lpips_weights: expected an existing file"]),
-    "lpips-weights-corrupt": Case(["eval.lpips_weights={TMP}/bad.pth"], ["eval.lpips_weights: cannot load"],
-                                  {"bad.pth": b"not a checkpoint"}),
+    "lpips-weights-missing": Case(
+        ["eval.lpips_weights={TMP}/nope.pth"], ["eval.lpips_weights: expected an existing file"]
+    ),
+    "lpips-weights-corrupt": Case(
+        ["eval.lpips_weights={TMP}/bad.pth"], ["eval.lpips_weights: cannot load"], {"bad.pth": b"not a checkpoint"}
+    ),
     "memory-not-bool": Case(["memory.torch_live=maybe"], ["memory.torch_live: expected true or false", "'maybe'"]),
     "unknown-top-key": Case(["+nonsense=1"], ["unknown setting 'nonsense'", "expected one of"]),
     "unknown-key-no-plus": Case(["eval.nonsense=1"], ["eval: expected a setting among every", "found nonsense"]),
-    "unknown-dataset": Case(["dataset=nope"],
-                            ["unknown dataset 'nope'", "available: euroc, kitti, sevenscenes, synthetic, tum"]),
+    "unknown-dataset": Case(
+        ["dataset=nope"], ["unknown dataset 'nope'", "available: euroc, kitti, sevenscenes, synthetic, tum"]
+    ),
     "unknown-strategy": Case(["+strategy=pockt"], ["unknown strategy 'pockt'; did you mean 'pocket'?"]),
-    "strategy-param-no-plus": Case(["+strategy=pocket", "strategy.params.nonsense=1"],
-                                   ["strategy.params: expected a setting among", "budget_min", "found nonsense"]),
-    "strategy-param-plus": Case(["+strategy=pocket", "+strategy.params.nonsense=1"],
-                                ["strategy 'pocket': expected parameters among", "budget_min", "found 'nonsense'"]),
-    "strategy-param-type": Case(["+strategy=pocket", "strategy.params.budget_min=abc"],
-                                ["strategy 'pocket' parameter budget_min: expected an integer", "found 'abc'"]),
-    "strategy-param-range": Case(["+strategy=mask", "strategy.params.gumbel_tau=0"],
-                                 ["strategy 'mask': gumbel_tau: expected a number > 0", "found 0"]),
-    "strategy-param-choice": Case(["+strategy=area", "strategy.params.area=square"],
-                                  ["strategy 'area': area: expected one of exact, analytic, radius", "'square'"]),
+    "strategy-param-no-plus": Case(
+        ["+strategy=pocket", "strategy.params.nonsense=1"],
+        ["strategy.params: expected a setting among", "budget_min", "found nonsense"],
+    ),
+    "strategy-param-plus": Case(
+        ["+strategy=pocket", "+strategy.params.nonsense=1"],
+        ["strategy 'pocket': expected parameters among", "budget_min", "found 'nonsense'"],
+    ),
+    "strategy-param-type": Case(
+        ["+strategy=pocket", "strategy.params.budget_min=abc"],
+        ["strategy 'pocket' parameter budget_min: expected an integer", "found 'abc'"],
+    ),
+    "strategy-param-range": Case(
+        ["+strategy=mask", "strategy.params.gumbel_tau=0"],
+        ["strategy 'mask': gumbel_tau: expected a number > 0", "found 0"],
+    ),
+    "strategy-param-choice": Case(
+        ["+strategy=area", "strategy.params.area=square"],
+        ["strategy 'area': area: expected one of exact, analytic, radius", "'square'"],
+    ),
     "slam-type": Case(["slam.tracking_iters=abc"], ["slam.tracking_iters: expected an integer", "found 'abc'"]),
     "slam-range": Case(["slam.kf_every=0"], ["slam.kf_every: expected an integer >= 1", "found 0"]),
     "slam-choice": Case(["slam.tracking_init=magic"], ["slam.tracking_init: expected one of velocity, flow_pnp"]),
-    "slam-frontend-type": Case(["+slam.flow_pnp.min_inliers=abc"],
-                               ["slam.flow_pnp.min_inliers: expected an integer", "found 'abc'"]),
+    "slam-frontend-type": Case(
+        ["+slam.flow_pnp.min_inliers=abc"], ["slam.flow_pnp.min_inliers: expected an integer", "found 'abc'"]
+    ),
     "dataset-size": Case(["dataset.width=8"], ["dataset.width: expected an integer >= 16", "found 8"]),
     "dataset-range": Case(["dataset=kitti", "dataset.downscale=0"], ["dataset.downscale: expected an integer >= 1"]),
     "dataset-choice": Case(["dataset=kitti", "dataset.color=sepia"], ["dataset.color: expected one of auto, color"]),
-    "frame-range": Case(["dataset=kitti", "dataset.first=5", "dataset.last=2"],
-                        ["expected first <= last", "first=5 last=2"]),
-    "run-dir-is-file": Case(["hydra.run.dir={TMP}/afile"], ["hydra.run.dir: expected a directory, found the file"],
-                            {"afile": b""}),
-    "run-dir-under-file": Case(["hydra.run.dir={TMP}/afile/run"], ["hydra.run.dir: expected a directory"],
-                               {"afile": b""}),
-    "run-dir-unwritable": Case(["hydra.run.dir=/proc/pocketbench/run"],
-                               ["hydra.run.dir: expected a writable directory", "/proc"]),
-    "out-dir-is-file": Case(["out_dir={TMP}/afile"], ["out_dir: expected a directory, found the file"],
-                            {"afile": b""}),
+    "frame-range": Case(
+        ["dataset=kitti", "dataset.first=5", "dataset.last=2"], ["expected first <= last", "first=5 last=2"]
+    ),
+    "run-dir-is-file": Case(
+        ["hydra.run.dir={TMP}/afile"], ["hydra.run.dir: expected a directory, found the file"], {"afile": b""}
+    ),
+    "run-dir-under-file": Case(
+        ["hydra.run.dir={TMP}/afile/run"], ["hydra.run.dir: expected a directory"], {"afile": b""}
+    ),
+    "run-dir-unwritable": Case(
+        ["hydra.run.dir=/proc/pocketbench/run"], ["hydra.run.dir: expected a writable directory", "/proc"]
+    ),
+    "out-dir-is-file": Case(["out_dir={TMP}/afile"], ["out_dir: expected a directory, found the file"], {"afile": b""}),
     "out-dir-unwritable": Case(["out_dir=/proc/pocketbench"], ["out_dir: expected a writable directory"]),
-    "sweep-dir-unwritable": Case(["--multirun", "seed=0,1", "hydra.sweep.dir=/proc/pocketbench"],
-                                 ["hydra.sweep.dir: expected a writable directory"]),
-    "sweep-bad-fixed-key": Case(["--multirun", "seed=0,1", "+strategy=pocket", "strategy.params.nonsense=1"],
-                                ["strategy.params: expected a setting among", "found nonsense"]),
+    "sweep-dir-unwritable": Case(
+        ["--multirun", "seed=0,1", "hydra.sweep.dir=/proc/pocketbench"],
+        ["hydra.sweep.dir: expected a writable directory"],
+    ),
+    "sweep-bad-fixed-key": Case(
+        ["--multirun", "seed=0,1", "+strategy=pocket", "strategy.params.nonsense=1"],
+        ["strategy.params: expected a setting among", "found nonsense"],
+    ),
 }
 
 
@@ -169,15 +191,19 @@ def test_sweep_records_a_bad_value_as_failed_and_goes_on(tmp_path: Path) -> None
         assert f"error: {rec['error']}" in errors
         assert rec["metrics"] == {} and rec["run"]["strategy"] == "none" and rec["run"]["dataset"] == "synthetic"
         assert {p.name for p in (tmp_path / name).iterdir() if not p.name.startswith(".")} <= {
-            "cli.log", "metrics.json"}
+            "cli.log",
+            "metrics.json",
+        }
 
 
 def test_sweep_records_a_job_that_cannot_be_composed(tmp_path: Path) -> None:
     res = run_cli(["--multirun", "dataset=nope,nope2", f"hydra.sweep.dir={tmp_path}"])
     assert res.code == 0, res.stderr
     errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error:")]
-    assert errors == ["error: unknown dataset 'nope'; available: euroc, kitti, sevenscenes, synthetic, tum",
-                      "error: unknown dataset 'nope2'; available: euroc, kitti, sevenscenes, synthetic, tum"]
+    assert errors == [
+        "error: unknown dataset 'nope'; available: euroc, kitti, sevenscenes, synthetic, tum",
+        "error: unknown dataset 'nope2'; available: euroc, kitti, sevenscenes, synthetic, tum",
+    ]
     for name in ("nope", "nope2"):
         rec = json.loads((tmp_path / f"dataset={name}" / "metrics.json").read_text())
         assert rec["status"] == "failed" and rec["error"] == errors[0 if name == "nope" else 1][7:]
@@ -230,51 +256,99 @@ def _swap_rows_2_3(lines: list[str]) -> None:
 
 
 def _set_row(path: Path, key: str, values: str) -> None:
-    _lines(path, lambda ls: ls.__setitem__(next(i for i, ln in enumerate(ls) if ln.startswith(key)),
-                                           f"{key} {values}"))
+    _lines(path, lambda ls: ls.__setitem__(next(i for i, ln in enumerate(ls) if ln.startswith(key)), f"{key} {values}"))
 
 
 DATA_CASES = {
     # name: (dataset, breakage(root), parts of the error line)
     "kitti-missing-root": ("kitti", lambda r: shutil.rmtree(r), ["kitti root not found"]),
-    "kitti-wrong-seq": ("kitti", lambda r: (r / "sequences" / "06").rename(r / "sequences" / "07"),
-                        ["kitti sequence '06' not found", "has: 07"]),
-    "kitti-short-poses": ("kitti", lambda r: _lines(r / "poses" / "06.txt", lambda ls: ls.pop()),
-                          ["expected 51 poses", "found 50"]),
-    "kitti-nan-pose": ("kitti", lambda r: _lines(r / "poses" / "06.txt", _nan_in_line_5),
-                       ["line 5", "expected finite numbers", "nan"]),
-    "kitti-missing-calib-key": ("kitti", lambda r: _lines(_kitti_calib(r), lambda ls: ls.pop(1)),
-                                ["expected P1", "found keys"]),
+    "kitti-wrong-seq": (
+        "kitti",
+        lambda r: (r / "sequences" / "06").rename(r / "sequences" / "07"),
+        ["kitti sequence '06' not found", "has: 07"],
+    ),
+    "kitti-short-poses": (
+        "kitti",
+        lambda r: _lines(r / "poses" / "06.txt", lambda ls: ls.pop()),
+        ["expected 51 poses", "found 50"],
+    ),
+    "kitti-nan-pose": (
+        "kitti",
+        lambda r: _lines(r / "poses" / "06.txt", _nan_in_line_5),
+        ["line 5", "expected finite numbers", "nan"],
+    ),
+    "kitti-missing-calib-key": (
+        "kitti",
+        lambda r: _lines(_kitti_calib(r), lambda ls: ls.pop(1)),
+        ["expected P1", "found keys"],
+    ),
     "kitti-calib-text": ("kitti", lambda r: _edit(_kitti_calib(r), "P1:", "P1: x"), ["expected numbers after 'P1:'"]),
-    "kitti-singular-P": ("kitti", lambda r: _set_row(_kitti_calib(r), "P0:",
-                                                     "707.0912 0 601.8873 0 0 707.0912 183.1104 0 0 0 0 0"),
-                         ["expected an invertible left 3x3 block in P0", "singular"]),
-    "kitti-negative-fx": ("kitti", lambda r: _set_row(_kitti_calib(r), "P0:",
-                                                      "-707.0912 0 601.8873 0 0 707.0912 183.1104 0 0 0 1 0"),
-                          ["expected positive focal lengths in P0", "fx=-707.091"]),
-    "kitti-times-count": ("kitti", lambda r: _lines(r / "sequences" / "06" / "times.txt", lambda ls: ls.pop()),
-                          ["expected 51 lines", "found 50"]),
-    "kitti-stereo-mismatch": ("kitti", lambda r: (r / "sequences" / "06" / "image_1" / "000050.png").unlink(),
-                              ["expected matching images in image_0 and image_1", "found 51 and 50"]),
-    "kitti-corrupt-first-png": ("kitti", lambda r: _corrupt(r / "sequences" / "06" / "image_0" / "000000.png"),
-                                ["image unreadable", "000000.png"]),
-    "euroc-fx-zero": ("euroc", lambda r: _edit(_sensor(r), "intrinsics: [458.654,", "intrinsics: [0.0,"),
-                      ["key 'intrinsics': expected positive focal lengths", "found 0, 457.296"]),
-    "euroc-fx-negative": ("euroc", lambda r: _edit(_sensor(r), "intrinsics: [458.654,", "intrinsics: [-458.654,"),
-                          ["key 'intrinsics': expected positive focal lengths", "-458.654"]),
-    "euroc-resolution-zero": ("euroc", lambda r: _edit(_sensor(r), "resolution: [752, 480]", "resolution: [0, 0]"),
-                              ["key 'resolution': expected positive integer width and height", "[0.0, 0.0]"]),
+    "kitti-singular-P": (
+        "kitti",
+        lambda r: _set_row(_kitti_calib(r), "P0:", "707.0912 0 601.8873 0 0 707.0912 183.1104 0 0 0 0 0"),
+        ["expected an invertible left 3x3 block in P0", "singular"],
+    ),
+    "kitti-negative-fx": (
+        "kitti",
+        lambda r: _set_row(_kitti_calib(r), "P0:", "-707.0912 0 601.8873 0 0 707.0912 183.1104 0 0 0 1 0"),
+        ["expected positive focal lengths in P0", "fx=-707.091"],
+    ),
+    "kitti-times-count": (
+        "kitti",
+        lambda r: _lines(r / "sequences" / "06" / "times.txt", lambda ls: ls.pop()),
+        ["expected 51 lines", "found 50"],
+    ),
+    "kitti-stereo-mismatch": (
+        "kitti",
+        lambda r: (r / "sequences" / "06" / "image_1" / "000050.png").unlink(),
+        ["expected matching images in image_0 and image_1", "found 51 and 50"],
+    ),
+    "kitti-corrupt-first-png": (
+        "kitti",
+        lambda r: _corrupt(r / "sequences" / "06" / "image_0" / "000000.png"),
+        ["image unreadable", "000000.png"],
+    ),
+    "euroc-fx-zero": (
+        "euroc",
+        lambda r: _edit(_sensor(r), "intrinsics: [458.654,", "intrinsics: [0.0,"),
+        ["key 'intrinsics': expected positive focal lengths", "found 0, 457.296"],
+    ),
+    "euroc-fx-negative": (
+        "euroc",
+        lambda r: _edit(_sensor(r), "intrinsics: [458.654,", "intrinsics: [-458.654,"),
+        ["key 'intrinsics': expected positive focal lengths", "-458.654"],
+    ),
+    "euroc-resolution-zero": (
+        "euroc",
+        lambda r: _edit(_sensor(r), "resolution: [752, 480]", "resolution: [0, 0]"),
+        ["key 'resolution': expected positive integer width and height", "[0.0, 0.0]"],
+    ),
     "euroc-bad-yaml": ("euroc", lambda r: _edit(_sensor(r), "rows: 4", "rows: [4"), ["expected valid yaml"]),
-    "euroc-short-intrinsics": ("euroc", lambda r: _edit(_sensor(r), "367.215, 248.375]", "367.215]"),
-                               ["expected 4 finite numbers, found 3"]),
-    "euroc-alias-missing": ("euroc", lambda r: (r / "V1_01_micro").rename(r / "elsewhere"),
-                            ["euroc sequence 'V1_01_micro' not found"]),
-    "tum-duplicate-stamp": ("tum", lambda r: _lines(_gt(r), lambda ls: ls.insert(3, ls[2])),
-                            ["groundtruth.txt line 4: expected strictly increasing timestamps", "duplicate of line 3"]),
-    "tum-unsorted-stamps": ("tum", lambda r: _lines(_gt(r), lambda ls: ls.__setitem__(slice(2, 4), ls[3:1:-1])),
-                            ["groundtruth.txt line 4: expected strictly increasing", "after"]),
-    "tum-unsorted-rgb": ("tum", lambda r: _lines(_tum(r) / "rgb.txt", _swap_rows_2_3),
-                         ["rgb list", "line 3: expected strictly increasing"]),
+    "euroc-short-intrinsics": (
+        "euroc",
+        lambda r: _edit(_sensor(r), "367.215, 248.375]", "367.215]"),
+        ["expected 4 finite numbers, found 3"],
+    ),
+    "euroc-alias-missing": (
+        "euroc",
+        lambda r: (r / "V1_01_micro").rename(r / "elsewhere"),
+        ["euroc sequence 'V1_01_micro' not found"],
+    ),
+    "tum-duplicate-stamp": (
+        "tum",
+        lambda r: _lines(_gt(r), lambda ls: ls.insert(3, ls[2])),
+        ["groundtruth.txt line 4: expected strictly increasing timestamps", "duplicate of line 3"],
+    ),
+    "tum-unsorted-stamps": (
+        "tum",
+        lambda r: _lines(_gt(r), lambda ls: ls.__setitem__(slice(2, 4), ls[3:1:-1])),
+        ["groundtruth.txt line 4: expected strictly increasing", "after"],
+    ),
+    "tum-unsorted-rgb": (
+        "tum",
+        lambda r: _lines(_tum(r) / "rgb.txt", _swap_rows_2_3),
+        ["rgb list", "line 3: expected strictly increasing"],
+    ),
 }
 
 
@@ -307,8 +381,7 @@ def test_bad_data_file_fails_before_any_work(name: str, tmp_path: Path, request:
     breakage(root)
     run_dir = tmp_path / "run"
     no_cache = [] if dataset == "tum" else ["dataset.cache_dir=null"]
-    res = run_cli([f"dataset={dataset}", f"seq={seq}", f"dataset.root={root}", *no_cache,
-                   f"hydra.run.dir={run_dir}"])
+    res = run_cli([f"dataset={dataset}", f"seq={seq}", f"dataset.root={root}", *no_cache, f"hydra.run.dir={run_dir}"])
     assert res.code == 2, res.stderr
     line = res.error_line
     for part in parts:
@@ -318,11 +391,20 @@ def test_bad_data_file_fails_before_any_work(name: str, tmp_path: Path, request:
     assert not (run_dir / "keyframes.csv").exists()  # refused before the SLAM loop
 
 
-@pytest.mark.parametrize(("dataset", "given", "canonical"), [
-    ("kitti", "6", "06"), ("kitti", "06", "06"), ("euroc", "V101", "V1_01_easy"), ("euroc", "v1_01", "V1_01_easy"),
-    ("euroc", "V1_01_easy", "V1_01_easy"), ("tum", "fr1_desk", "rgbd_dataset_freiburg1_desk"),
-    ("synthetic", "007", "7"), ("sevenscenes", "1", "seq-01"), ("sevenscenes", "seq-01", "seq-01"),
-])
+@pytest.mark.parametrize(
+    ("dataset", "given", "canonical"),
+    [
+        ("kitti", "6", "06"),
+        ("kitti", "06", "06"),
+        ("euroc", "V101", "V1_01_easy"),
+        ("euroc", "v1_01", "V1_01_easy"),
+        ("euroc", "V1_01_easy", "V1_01_easy"),
+        ("tum", "fr1_desk", "rgbd_dataset_freiburg1_desk"),
+        ("synthetic", "007", "7"),
+        ("sevenscenes", "1", "seq-01"),
+        ("sevenscenes", "seq-01", "seq-01"),
+    ],
+)
 def test_one_sequence_one_name(dataset: str, given: str, canonical: str) -> None:
     from bench.config.identity import run_keys
     from bench.datasets import canonical_seq
@@ -337,9 +419,16 @@ def test_report_counts_one_sequence_once(tmp_path: Path) -> None:
 
     for name, seq in (("a", "6"), ("b", "06")):
         (tmp_path / name).mkdir()
-        (tmp_path / name / "metrics.json").write_text(json.dumps({
-            "status": "ok", "error": None, "metrics": {"ate_rmse_m": 0.1},
-            "run": {"strategy": "none", "dataset": "kitti", "seq": seq, "seed": 0, "keep_ratio": None}}))
+        (tmp_path / name / "metrics.json").write_text(
+            json.dumps(
+                {
+                    "status": "ok",
+                    "error": None,
+                    "metrics": {"ate_rmse_m": 0.1},
+                    "run": {"strategy": "none", "dataset": "kitti", "seq": seq, "seed": 0, "keep_ratio": None},
+                }
+            )
+        )
     assert sorted(set(collect([tmp_path]).runs["seq"])) == ["06"]
 
 

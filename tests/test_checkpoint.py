@@ -39,8 +39,9 @@ def bench(args: list[str], cwd: Path, signal_at: str | None = None) -> subproces
     if signal_at:
         env[TEST_SIGNAL_ENV] = signal_at
         env["PYTHONPATH"] = os.pathsep.join((str(HOOKS), str(REPO)))
-    return subprocess.run([sys.executable, "-m", "bench", *args], cwd=cwd, env=env, text=True, capture_output=True,
-                          timeout=900)
+    return subprocess.run(
+        [sys.executable, "-m", "bench", *args], cwd=cwd, env=env, text=True, capture_output=True, timeout=900
+    )
 
 
 def keyframe_rows(run_dir: Path) -> list[dict[str, str]]:
@@ -77,8 +78,9 @@ def checkpoint_frames(reference: Path) -> list[int]:
 @pytest.mark.slow
 @pytest.mark.parametrize("where", ["between", "after"])
 @pytest.mark.parametrize("strategy", ["none", "pocket"])
-def test_sigkilled_run_resumes_to_the_same_results(strategy: str, where: str, references: dict[str, Path],
-                                                    tmp_path: Path) -> None:
+def test_sigkilled_run_resumes_to_the_same_results(
+    strategy: str, where: str, references: dict[str, Path], tmp_path: Path
+) -> None:
     ref = references[strategy]
     at = checkpoint_frames(ref)
     assert len(at) >= 2, f"the tiny drive needs two checkpoints, found them after frames {at}"
@@ -118,14 +120,21 @@ def test_corrupt_checkpoint_is_one_log_line_and_a_fresh_run(references: dict[str
 
 
 @pytest.mark.slow
-def test_preempted_submitit_job_checkpoints_is_requeued_and_resumes(references: dict[str, Path],
-                                                                    tmp_path: Path) -> None:
+def test_preempted_submitit_job_checkpoints_is_requeued_and_resumes(
+    references: dict[str, Path], tmp_path: Path
+) -> None:
     """submitit_local sends the preemption signal (USR2) like SLURM: the job finishes its frame, writes
     a checkpoint, is requeued through the launcher's ``checkpoint()``, and the requeued job resumes."""
     preempt_at = checkpoint_frames(references["none"])[0] + 1  # not a checkpoint frame: the signal writes one
     sweep_dir = tmp_path / "sweep"
-    args = ["--multirun", *TINY, "+strategy=none", "hydra/launcher=submitit_local", "hydra.launcher.timeout_min=10",
-            f"hydra.sweep.dir={sweep_dir}"]
+    args = [
+        "--multirun",
+        *TINY,
+        "+strategy=none",
+        "hydra/launcher=submitit_local",
+        "hydra.launcher.timeout_min=10",
+        f"hydra.sweep.dir={sweep_dir}",
+    ]
     proc = bench(args, tmp_path, signal_at=f"{preempt_at}:USR2")
     assert proc.returncode == 0, proc.stderr[-3000:] + proc.stdout[-2000:]
     (run_dir,) = [p.parent for p in sweep_dir.glob("*/metrics.json")]
@@ -142,8 +151,17 @@ KEY = {"config_hash": "abc", "code_version": {"git_commit": "c0", "git_dirty": F
 
 
 def _write(tmp_path: Path, **overrides) -> Path:
-    payload = {"key": KEY, "frame": 4, "keyframe": 1, "system": {}, "drive": {}, "rng": {},
-               "rows": {"traj": 4, "keyframes": 2}, "stats": {}, **overrides}  # fmt: skip
+    payload = {
+        "key": KEY,
+        "frame": 4,
+        "keyframe": 1,
+        "system": {},
+        "drive": {},
+        "rng": {},
+        "rows": {"traj": 4, "keyframes": 2},
+        "stats": {},
+        **overrides,
+    }
     ckpt.save(tmp_path, payload, keep=1)
     return tmp_path / "checkpoint.pt"
 
@@ -157,24 +175,32 @@ def test_find_accepts_a_matching_checkpoint(tmp_path: Path) -> None:
     assert why == "" and found["frame"] == 4
 
 
-@pytest.mark.parametrize("damage, reason", [
-    (lambda p: p.write_bytes(p.read_bytes()[:100]), "checkpoint.pt is unreadable (truncated or corrupt"),
-    (lambda p: p.write_bytes(b"not a checkpoint"), "checkpoint.pt is unreadable (truncated or corrupt"),
-    (lambda p: torch.save({"format": 0}, p), "checkpoint.pt has format 0, expected 2"),
-    (lambda p: torch.save({"format": 1, "obj": object()}, p), "checkpoint.pt is unreadable"),  # not plain values
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "damage, reason",
+    [
+        (lambda p: p.write_bytes(p.read_bytes()[:100]), "checkpoint.pt is unreadable (truncated or corrupt"),
+        (lambda p: p.write_bytes(b"not a checkpoint"), "checkpoint.pt is unreadable (truncated or corrupt"),
+        (lambda p: torch.save({"format": 0}, p), "checkpoint.pt has format 0, expected 2"),
+        (lambda p: torch.save({"format": 1, "obj": object()}, p), "checkpoint.pt is unreadable"),  # not plain values
+    ],
+)
 def test_find_refuses_a_damaged_checkpoint(damage, reason: str, tmp_path: Path) -> None:
     damage(_write(tmp_path))
     found, why = ckpt.find(tmp_path, KEY, ROWS)
     assert found is None and why.startswith(reason), why
 
 
-@pytest.mark.parametrize("key, reason", [
-    ({**KEY, "config_hash": "other"}, "checkpoint.pt is foreign: config changed (hash abc -> other)"),
-    ({**KEY, "code_version": {"git_commit": "c1", "git_dirty": False}},
-     "checkpoint.pt is foreign: code version changed (c0 -> c1)"),
-    ({**KEY, "inputs": {"f": "2"}}, "checkpoint.pt is foreign: input files changed: f"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "key, reason",
+    [
+        ({**KEY, "config_hash": "other"}, "checkpoint.pt is foreign: config changed (hash abc -> other)"),
+        (
+            {**KEY, "code_version": {"git_commit": "c1", "git_dirty": False}},
+            "checkpoint.pt is foreign: code version changed (c0 -> c1)",
+        ),
+        ({**KEY, "inputs": {"f": "2"}}, "checkpoint.pt is foreign: input files changed: f"),
+    ],
+)
 def test_find_refuses_a_foreign_checkpoint(key: dict, reason: str, tmp_path: Path) -> None:
     _write(tmp_path)
     found, why = ckpt.find(tmp_path, key, ROWS)
@@ -188,8 +214,16 @@ def test_find_refuses_a_checkpoint_ahead_of_the_flushed_rows(tmp_path: Path) -> 
 
 
 def test_a_bad_newest_checkpoint_falls_back_to_the_previous_one(tmp_path: Path) -> None:
-    payload = {"key": KEY, "frame": 4, "keyframe": 1, "system": {}, "drive": {}, "rng": {},
-               "rows": {"traj": 4, "keyframes": 2}, "stats": {}}  # fmt: skip
+    payload = {
+        "key": KEY,
+        "frame": 4,
+        "keyframe": 1,
+        "system": {},
+        "drive": {},
+        "rng": {},
+        "rows": {"traj": 4, "keyframes": 2},
+        "stats": {},
+    }
     ckpt.save(tmp_path, payload)
     ckpt.save(tmp_path, {**payload, "frame": 7})
     assert {p.name for p in tmp_path.iterdir()} == {"checkpoint.pt", "checkpoint.prev.pt"}
@@ -219,10 +253,13 @@ def test_global_generators_round_trip(tmp_path: Path) -> None:
     assert torch.equal(want[0], got[0]) and (want[1] == got[1]).all() and want[2] == got[2]
 
 
-@pytest.mark.parametrize("every, keep, message", [
-    (-1, 2, "checkpoint.every: expected an integer >= 0, found -1"),
-    (1, 3, "checkpoint.keep: expected an integer in [1, 2], found 3"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "every, keep, message",
+    [
+        (-1, 2, "checkpoint.every: expected an integer >= 0, found -1"),
+        (1, 3, "checkpoint.keep: expected an integer in [1, 2], found 3"),
+    ],
+)
 def test_checkpoint_config_is_checked(every: int, keep: int, message: str) -> None:
     with pytest.raises(ConfigError, match=re.escape(message)):
         CheckpointConfig(every=every, keep=keep)
@@ -238,8 +275,9 @@ def test_the_docs_list_exactly_what_a_resume_may_change() -> None:
 
 
 @pytest.mark.slow
-def test_a_resumed_run_draws_the_pictures_of_keyframes_before_the_kill(references: dict[str, Path],
-                                                                      tmp_path: Path) -> None:
+def test_a_resumed_run_draws_the_pictures_of_keyframes_before_the_kill(
+    references: dict[str, Path], tmp_path: Path
+) -> None:
     at = checkpoint_frames(references["pocket"])
     run_dir = tmp_path / "run"
     args = [*TINY, "+strategy=pocket", "viz.pruning=true", "viz.every=1", f"hydra.run.dir={run_dir}"]

@@ -37,14 +37,17 @@ def test_paper_command_form_parses():
     assert str(cfg.seq) == "10"
 
 
-@pytest.mark.parametrize(("overrides", "refine_iters", "tracking_iters"), [
-    ((), 200, 20),                                         # synthetic: specialised on
-    (("dataset=kitti",), 0, 20),                           # real data: off
-    (("dataset=euroc", "slam=paper"), 0, 50),              # survives another slam choice
-    (("slam=paper",), 200, 50),
-    (("dataset=kitti", "slam.refine_iters=7"), 7, 20),     # the command line wins
-    (("slam.refine_iters=0",), 0, 20),
-])
+@pytest.mark.parametrize(
+    ("overrides", "refine_iters", "tracking_iters"),
+    [
+        ((), 200, 20),  # synthetic: specialised on
+        (("dataset=kitti",), 0, 20),  # real data: off
+        (("dataset=euroc", "slam=paper"), 0, 50),  # survives another slam choice
+        (("slam=paper",), 200, 50),
+        (("dataset=kitti", "slam.refine_iters=7"), 7, 20),  # the command line wins
+        (("slam.refine_iters=0",), 0, 20),
+    ],
+)
 def test_final_refinement_is_specialised_per_dataset(overrides, refine_iters, tracking_iters):
     cfg = compose_cfg(*overrides)
     assert cfg.slam.refine_iters == refine_iters
@@ -71,13 +74,22 @@ def test_unknown_strategy_is_one_line_with_suggestion():
 
 def _run_cli(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": f"{REPO}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}  # this checkout
-    return subprocess.run([sys.executable, "-m", "bench", *args], cwd=cwd, capture_output=True, text=True,
-                          timeout=600, env=env)
+    return subprocess.run(
+        [sys.executable, "-m", "bench", *args], cwd=cwd, capture_output=True, text=True, timeout=600, env=env
+    )
 
 
 def test_missing_kitti_is_one_line_error(tmp_path):
-    proc = _run_cli(["+strategy=pocket", "dataset=kitti", "seq=10", f"dataset.root={tmp_path}/nokitti",
-                     f"hydra.run.dir={tmp_path}/run"], tmp_path)
+    proc = _run_cli(
+        [
+            "+strategy=pocket",
+            "dataset=kitti",
+            "seq=10",
+            f"dataset.root={tmp_path}/nokitti",
+            f"hydra.run.dir={tmp_path}/run",
+        ],
+        tmp_path,
+    )
     assert proc.returncode != 0
     assert "Traceback" not in proc.stderr
     err_lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("error:")]
@@ -96,8 +108,17 @@ def test_unknown_strategy_cli(tmp_path):
 @pytest.mark.slow
 def test_subprocess_tiny_run(tmp_path):
     # out_dir= takes precedence over Hydra's run dir (which then holds only Hydra's own files)
-    proc = _run_cli(["+experiment=tiny", "dataset.n_frames=6", "slam.mapping_iters=10", "slam.tracking_iters=10",
-                     f"hydra.run.dir={tmp_path}/hydra", f"out_dir={tmp_path}/run"], tmp_path)
+    proc = _run_cli(
+        [
+            "+experiment=tiny",
+            "dataset.n_frames=6",
+            "slam.mapping_iters=10",
+            "slam.tracking_iters=10",
+            f"hydra.run.dir={tmp_path}/hydra",
+            f"out_dir={tmp_path}/run",
+        ],
+        tmp_path,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     stored = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert stored["status"] == "ok"
@@ -126,8 +147,9 @@ def test_end_to_end_tiny_run_is_accurate(tmp_path):
     assert m["num_frames"] == 12
     # a tracker that stands still is off by about half the path; mapping must beat the map as seeded
     assert m["ate_rmse_m"] < 0.03 * m["path_length_m"], m
-    unmapped = run(compose_cfg("+experiment=tiny", "slam.mapping_iters=0", "slam.refine_iters=0"),
-                   out_dir=tmp_path / "unmapped").metrics
+    unmapped = run(
+        compose_cfg("+experiment=tiny", "slam.mapping_iters=0", "slam.refine_iters=0"), out_dir=tmp_path / "unmapped"
+    ).metrics
     assert m["psnr_db"] > unmapped["psnr_db"] + 0.5, (m["psnr_db"], unmapped["psnr_db"])
     # the run directory follows bench.schema
     from bench import schema
@@ -164,9 +186,22 @@ def test_a_single_run_is_validated_and_built_once(tmp_path, monkeypatch):
     conversions = []
     convert = bench.cli.validate.to_run_config
     monkeypatch.setattr(bench.cli.validate, "to_run_config", lambda cfg: conversions.append(1) or convert(cfg))
-    monkeypatch.setattr(sys, "argv", ["bench", "+experiment=tiny", "+strategy=pocket", "dataset.n_frames=3",
-                                      "slam.mapping_iters=2", "slam.tracking_iters=2", "slam.refine_iters=0",
-                                      "eval.lpips=false", "progress=false", f"hydra.run.dir={tmp_path}"])
+    monkeypatch.setattr(
+        sys,
+        "argv",
+        [
+            "bench",
+            "+experiment=tiny",
+            "+strategy=pocket",
+            "dataset.n_frames=3",
+            "slam.mapping_iters=2",
+            "slam.tracking_iters=2",
+            "slam.refine_iters=0",
+            "eval.lpips=false",
+            "progress=false",
+            f"hydra.run.dir={tmp_path}",
+        ],
+    )
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as err:
         assert cli.main() == 0, err.getvalue()
     assert json.loads((tmp_path / "metrics.json").read_text())["status"] == "ok"

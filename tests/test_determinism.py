@@ -41,8 +41,14 @@ def test_repeatable_sets_threads_and_kernels_then_restores_them():
     with repeatable(3, 1, "strict", CPU) as record:
         assert torch.get_num_threads() == 1
         assert torch.are_deterministic_algorithms_enabled()
-        assert record == {"mode": "strict", "deterministic": True, "threads": 1, "threads_fixed": True,
-                          "torch_deterministic_algorithms": True, "seed": 3}  # fmt: skip
+        assert record == {
+            "mode": "strict",
+            "deterministic": True,
+            "threads": 1,
+            "threads_fixed": True,
+            "torch_deterministic_algorithms": True,
+            "seed": 3,
+        }
     assert (torch.get_num_threads(), torch.are_deterministic_algorithms_enabled()) == (threads, det)
 
 
@@ -58,13 +64,15 @@ def test_a_grid_drive_opens_after_a_run_in_the_same_process():
     """Under a leftover flush-denormal mode scipy's cKDTree build recursed until the stack ran out on the
     grid route's street points: the second run of a sweep died with a segfault (a subprocess here, so a
     regression fails this test, not the whole session)."""
-    code = ("import torch\n"
-            "from bench.run.determinism import repeatable\n"
-            "from bench.datasets.synthetic import SyntheticConfig, open_sequence\n"
-            "with repeatable(0, 1, 'strict', torch.device('cpu')):\n"
-            "    torch.set_flush_denormal(True)\n"
-            "open_sequence(SyntheticConfig(route='grid', width=96, height=64, n_frames=12))\n"
-            "print('opened')\n")  # fmt: skip
+    code = (
+        "import torch\n"
+        "from bench.run.determinism import repeatable\n"
+        "from bench.datasets.synthetic import SyntheticConfig, open_sequence\n"
+        "with repeatable(0, 1, 'strict', torch.device('cpu')):\n"
+        "    torch.set_flush_denormal(True)\n"
+        "open_sequence(SyntheticConfig(route='grid', width=96, height=64, n_frames=12))\n"
+        "print('opened')\n"
+    )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0 and "opened" in proc.stdout, (proc.returncode, proc.stderr[-2000:])
 
@@ -77,11 +85,14 @@ def test_fast_mode_is_opt_in_and_recorded_as_not_deterministic():
     assert cfg.determinism == "strict" and isinstance(cfg.threads, int)
 
 
-@pytest.mark.parametrize(("args", "match"), [
-    ((0, 1, "quick"), "determinism must be one of strict, fast; found 'quick'"),
-    ((0, 0, "strict"), "threads must be a positive integer or null; found 0"),
-    ((-1, 1, "strict"), "seed must be a non-negative integer; found -1"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        ((0, 1, "quick"), "determinism must be one of strict, fast; found 'quick'"),
+        ((0, 0, "strict"), "threads must be a positive integer or null; found 0"),
+        ((-1, 1, "strict"), "seed must be a non-negative integer; found -1"),
+    ],
+)
 def test_bad_settings_are_one_line_config_errors(args, match):
     with pytest.raises(ConfigError, match=match), repeatable(*args, CPU):
         pass
@@ -146,8 +157,14 @@ def test_ransac_order_follows_the_seed():
     K = seq.K.double().numpy()
 
     def motion(seed: int) -> np.ndarray:
-        T, _ = relative_motion(to_gray_u8(prev.rgb), to_gray_u8(cur.rgb), prev.depth_m.numpy(), K, FlowPnpConfig(),
-                               rng=np.random.default_rng(seed))  # fmt: skip
+        T, _ = relative_motion(
+            to_gray_u8(prev.rgb),
+            to_gray_u8(cur.rgb),
+            prev.depth_m.numpy(),
+            K,
+            FlowPnpConfig(),
+            rng=np.random.default_rng(seed),
+        )
         assert T is not None
         return T
 
@@ -169,15 +186,23 @@ def test_densification_offsets_follow_the_seed():
 
 
 # ---------------------------------------------------------------- end to end
-QUICK = ("+experiment=tiny", "dataset.n_frames=9", "slam.mapping_iters=8", "slam.refine_iters=2",
-         "eval.lpips=false", "threads=2")  # fmt: skip
+QUICK = (
+    "+experiment=tiny",
+    "dataset.n_frames=9",
+    "slam.mapping_iters=8",
+    "slam.refine_iters=2",
+    "eval.lpips=false",
+    "threads=2",
+)
 
 
 def _repeatable_part(run_dir: Path) -> tuple[str, list[dict[str, str]], str]:
     stored = json.loads((run_dir / "metrics.json").read_text())
     metrics = json.dumps(repeatable_metrics(stored["metrics"]), indent=2)
-    rows = [{k: v for k, v in r.items() if k not in VOLATILE_KEYFRAME_COLUMNS}
-            for r in csv.DictReader((run_dir / "keyframes.csv").open())]  # fmt: skip
+    rows = [
+        {k: v for k, v in r.items() if k not in VOLATILE_KEYFRAME_COLUMNS}
+        for r in csv.DictReader((run_dir / "keyframes.csv").open())
+    ]
     return metrics, rows, (run_dir / "traj_est.txt").read_text()
 
 

@@ -15,16 +15,31 @@ from bench.run.export import C0, PROPERTIES, export_keyframe, main, map_arrays, 
 from bench.run.lifecycle import run
 from bench.slam.gaussians import GaussianMap
 
-TINY = ["dataset.width=48", "dataset.height=32", "dataset.n_frames=7", "slam.tracking_iters=4",
-        "slam.mapping_iters=4", "eval.lpips=false", "progress=false", "threads=1"]  # fmt: skip
+TINY = [
+    "dataset.width=48",
+    "dataset.height=32",
+    "dataset.n_frames=7",
+    "slam.tracking_iters=4",
+    "slam.mapping_iters=4",
+    "eval.lpips=false",
+    "progress=false",
+    "threads=1",
+]
 
 
 def random_map(n: int = 257) -> GaussianMap:
     g = torch.Generator().manual_seed(0)
     gmap = GaussianMap(torch.device("cpu"))
-    gmap.add({"means": torch.randn(n, 3, generator=g) * 20, "log_scales": torch.randn(n, 3, generator=g) - 3,
-              "quats": torch.randn(n, 4, generator=g), "opacity_logits": torch.randn(n, generator=g) * 4,
-              "colors": torch.rand(n, 3, generator=g)}, keyframe=0)  # fmt: skip
+    gmap.add(
+        {
+            "means": torch.randn(n, 3, generator=g) * 20,
+            "log_scales": torch.randn(n, 3, generator=g) - 3,
+            "quats": torch.randn(n, 4, generator=g),
+            "opacity_logits": torch.randn(n, generator=g) * 4,
+            "colors": torch.rand(n, 3, generator=g),
+        },
+        keyframe=0,
+    )
     return gmap
 
 

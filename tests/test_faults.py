@@ -53,9 +53,15 @@ def test_a_directory_in_place_of_the_checkpoint_is_refused_before_work(tmp_path:
     assert not (run_dir / "keyframes.csv").exists()
 
 
-@pytest.mark.parametrize("fault", [OSError(errno.ENOSPC, "No space left on device"),
-                                   RuntimeError("[enforce fail at inline_container.cc] . PytorchStreamWriter failed "
-                                                "writing file data/0: file write failed")])
+@pytest.mark.parametrize(
+    "fault",
+    [
+        OSError(errno.ENOSPC, "No space left on device"),
+        RuntimeError(
+            "[enforce fail at inline_container.cc] . PytorchStreamWriter failed writing file data/0: file write failed"
+        ),
+    ],
+)
 def test_a_failed_checkpoint_write_leaves_the_old_one_and_no_tmp(tmp_path: Path, monkeypatch, fault) -> None:
     import torch
 
@@ -133,8 +139,10 @@ def test_usage_errors_are_one_error_line(module: str, capsys) -> None:
 STUDY_FILES = {
     "syntax": ("hydra:\n  sweeper:\n    study:\n      sweeps: {a: [seed=0\n", "study 'syntax': expected a study file"),
     "empty": ("", "study 'empty': expected a study file"),
-    "override": ("# @package _global_\nhydra:\n  sweeper:\n    study:\n      sweeps:\n        a: [\"seed=[0\"]\n",
-                 "study 'override' sweep 'a': expected overrides as on a command line"),
+    "override": (
+        '# @package _global_\nhydra:\n  sweeper:\n    study:\n      sweeps:\n        a: ["seed=[0"]\n',
+        "study 'override' sweep 'a': expected overrides as on a command line",
+    ),
 }
 
 
@@ -170,8 +178,11 @@ def _edit_csv(path: Path, edit) -> None:
 
 REDRAW_CASES = {
     "keyframes-no-path": ("keyframes.csv", lambda t: t.pop("path"), "expected a path column"),
-    "keyframes-text": ("keyframes.csv", lambda t: t.__setitem__("n_gaussians", "abc"),
-                       "expected numbers in column 'n_gaussians'"),
+    "keyframes-text": (
+        "keyframes.csv",
+        lambda t: t.__setitem__("n_gaussians", "abc"),
+        "expected numbers in column 'n_gaussians'",
+    ),
     "runs-text": ("runs.csv", lambda t: t.__setitem__("ate_rmse_m", "abc"), "expected numbers in column 'ate_rmse_m'"),
 }
 

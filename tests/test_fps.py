@@ -69,8 +69,9 @@ print(json.dumps(jobs))
 def test_the_first_job_of_a_process_runs_like_the_next(tmp_path: Path) -> None:
     env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}  # the default, as a user runs it
     env["PYTHONPATH"] = f"{REPO}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"
-    proc = subprocess.run([sys.executable, "-c", PROBE, str(tmp_path)], capture_output=True, text=True,
-                          timeout=900, env=env, cwd=tmp_path)
+    proc = subprocess.run(
+        [sys.executable, "-c", PROBE, str(tmp_path)], capture_output=True, text=True, timeout=900, env=env, cwd=tmp_path
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     first, second = json.loads(proc.stdout.strip().splitlines()[-1])
     assert first["status"] == second["status"] == "ok"
@@ -88,6 +89,11 @@ def test_a_single_run_does_not_spin_idle_openmp_workers() -> None:
     env["PYTHONPATH"] = f"{REPO}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
     assert out.stdout.strip() == "PASSIVE", out.stderr[-2000:]
-    mine = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
-                          env={**env, "OMP_WAIT_POLICY": "ACTIVE"})
+    mine = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**env, "OMP_WAIT_POLICY": "ACTIVE"},
+    )
     assert mine.stdout.strip() == "ACTIVE"

@@ -26,6 +26,7 @@ from tests.test_bad_input import _lines, _tum_copy
 def _swap(i: int, j: int) -> Callable[[list[str]], None]:
     def edit(lines: list[str]) -> None:
         lines[i], lines[j] = lines[j], lines[i]
+
     return edit
 
 
@@ -38,6 +39,7 @@ def _field(i: int, k: int, value: str, sep: str = " ") -> Callable[[list[str]], 
         parts = lines[i].split(sep)
         parts[k] = value
         lines[i] = sep.join(parts)
+
     return edit
 
 
@@ -117,8 +119,9 @@ def _open(dataset: str, root: Path, seq: str) -> None:
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
-def test_a_loader_refuses_what_the_docs_say_it_refuses(name: str, tmp_path: Path,
-                                                           request: pytest.FixtureRequest) -> None:
+def test_a_loader_refuses_what_the_docs_say_it_refuses(
+    name: str, tmp_path: Path, request: pytest.FixtureRequest
+) -> None:
     dataset, rel, edit, says = CASES[name]
     root, seq = _root(dataset, tmp_path, request)
     _open(dataset, root, seq)  # intact: opens
@@ -137,12 +140,15 @@ def test_a_missing_root_is_refused(dataset: str, tmp_path: Path) -> None:
         _open(dataset, tmp_path / "nowhere", seq)
 
 
-@pytest.mark.parametrize(("text", "says"), [
-    ("1 0 0 0 0 1 0 0 0 0 1 0\n" * 20, "expected a route that moves along the ground"),
-    ("1 0 0 0 0 1 0 0 0 0 1 nan\n" * 20, "expected 12 finite numbers per line"),
-    ("1 0 0\n" * 20, "expected 12 finite numbers per line"),
-    ("", "expected at least n_frames=12 poses, found 0"),
-])
+@pytest.mark.parametrize(
+    ("text", "says"),
+    [
+        ("1 0 0 0 0 1 0 0 0 0 1 0\n" * 20, "expected a route that moves along the ground"),
+        ("1 0 0 0 0 1 0 0 0 0 1 nan\n" * 20, "expected 12 finite numbers per line"),
+        ("1 0 0\n" * 20, "expected 12 finite numbers per line"),
+        ("", "expected at least n_frames=12 poses, found 0"),
+    ],
+)
 def test_the_synthetic_route_file_refuses_what_it_cannot_drive(text: str, says: str, tmp_path: Path) -> None:
     route = tmp_path / "route.txt"
     route.write_text(text)

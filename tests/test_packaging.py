@@ -24,8 +24,14 @@ def repo_env() -> dict[str, str]:
 
 
 def test_help_lists_choices_and_examples_not_internal_groups(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "bench", "--help"], cwd=tmp_path, env=repo_env(),
-                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    proc = subprocess.run(
+        [sys.executable, "-m", "bench", "--help"],
+        cwd=tmp_path,
+        env=repo_env(),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr
     out = proc.stdout
     assert out.startswith("pocketbench: benchmark Gaussian-pruning strategies")
@@ -51,16 +57,35 @@ def test_launcher_configs_share_their_settings():
 def wheel_venv(tmp_path_factory) -> Path:
     """A venv holding this checkout built as a wheel, alone (its dependencies come from this run's site)."""
     root = tmp_path_factory.mktemp("wheel")
-    build = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation",
-                            "-w", str(root / "dist"), str(REPO)], capture_output=True, text=True, timeout=300)
+    build = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "-q",
+            "--no-deps",
+            "--no-build-isolation",
+            "-w",
+            str(root / "dist"),
+            str(REPO),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert build.returncode == 0, build.stderr[-2000:]
     make_venv(root / "venv")
     wheel = next((root / "dist").glob("pocketbench-*.whl"))
     with zipfile.ZipFile(wheel) as zf:  # the packages only: no profiling/, tests/ or reports/
         top = {name.split("/", 1)[0] for name in zf.namelist()}
     assert top - {"bench", "strategies", "hydra_plugins"} == {f"pocketbench-{wheel.name.split('-')[1]}.dist-info"}, top
-    install = subprocess.run([str(root / "venv" / "bin" / "python"), "-m", "pip", "install", "-q", "--no-deps",
-                              str(wheel)], capture_output=True, text=True, timeout=300)  # fmt: skip
+    install = subprocess.run(
+        [str(root / "venv" / "bin" / "python"), "-m", "pip", "install", "-q", "--no-deps", str(wheel)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert install.returncode == 0, install.stderr[-2000:]
     return root / "venv"
 
@@ -74,20 +99,39 @@ def _venv_env(venv: Path) -> dict[str, str]:
 @pytest.mark.slow
 def test_wheel_install_finds_its_configs(wheel_venv, tmp_path):
     env = _venv_env(wheel_venv)
-    where = subprocess.run([str(wheel_venv / "bin" / "python"), "-c", "import bench.conf; print(bench.conf.CONF_DIR)"],
-                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60)  # fmt: skip
+    where = subprocess.run(
+        [str(wheel_venv / "bin" / "python"), "-c", "import bench.conf; print(bench.conf.CONF_DIR)"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert where.stdout.strip().startswith(str(wheel_venv)), where.stdout + where.stderr
-    cfg = subprocess.run(["pocketbench", "+strategy=pocket", "dataset=kitti", "--cfg", "job"], cwd=tmp_path,
-                         env=env, capture_output=True, text=True, timeout=120)  # fmt: skip
+    cfg = subprocess.run(
+        ["pocketbench", "+strategy=pocket", "dataset=kitti", "--cfg", "job"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert cfg.returncode == 0, cfg.stderr[-2000:]
     composed = yaml.safe_load(cfg.stdout)
     assert composed["strategy"]["name"] == "pocket" and composed["dataset"]["name"] == "kitti"
     # a user's ./conf is searched ahead of the installed configs (hydra_plugins/pocketbench_searchpath)
     (tmp_path / "conf" / "dataset").mkdir(parents=True)
     (tmp_path / "conf" / "dataset" / "kitti.yaml").write_text(
-        "defaults:\n  - /schema/dataset/kitti@_here_\n  - _self_\nroot: /data/my_kitti\n")
-    cfg = subprocess.run(["pocketbench", "dataset=kitti", "--cfg", "job"], cwd=tmp_path, env=env, capture_output=True,
-                         text=True, timeout=120)  # fmt: skip
+        "defaults:\n  - /schema/dataset/kitti@_here_\n  - _self_\nroot: /data/my_kitti\n"
+    )
+    cfg = subprocess.run(
+        ["pocketbench", "dataset=kitti", "--cfg", "job"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert cfg.returncode == 0, cfg.stderr[-2000:]
     assert yaml.safe_load(cfg.stdout)["dataset"]["root"] == "/data/my_kitti"
 
@@ -97,10 +141,11 @@ def test_bash_completion_of_the_installed_command(wheel_venv, tmp_path):
     script = (
         'eval "$(pocketbench -sc install=bash)"\n'
         'COMP_LINE="pocketbench +strategy=po"; COMP_POINT=${#COMP_LINE}; COMP_CWORD=1\n'
-        'hydra_bash_completion\n'
+        "hydra_bash_completion\n"
         'printf "%s\\n" "${COMPREPLY[@]}"\n'
     )
-    proc = subprocess.run(["bash", "-c", script], cwd=tmp_path, env=_venv_env(wheel_venv), capture_output=True,
-                          text=True, timeout=120)  # fmt: skip
+    proc = subprocess.run(
+        ["bash", "-c", script], cwd=tmp_path, env=_venv_env(wheel_venv), capture_output=True, text=True, timeout=120
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.split() == ["+strategy=pocket"], proc.stdout + proc.stderr

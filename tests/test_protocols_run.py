@@ -14,8 +14,17 @@ from bench.config.compose import to_run_config
 from bench.run.lifecycle import run
 from tests.test_bad_input import run_cli, tiny
 
-SMALL = ["+experiment=tiny", "dataset.n_frames=4", "slam.tracking_iters=4", "slam.mapping_iters=4",
-         "slam.refine_iters=0", "eval.every=1", "eval.lpips=false", "eval.at_frames=[3]", "progress=false"]
+SMALL = [
+    "+experiment=tiny",
+    "dataset.n_frames=4",
+    "slam.tracking_iters=4",
+    "slam.mapping_iters=4",
+    "slam.refine_iters=0",
+    "eval.every=1",
+    "eval.lpips=false",
+    "eval.at_frames=[3]",
+    "progress=false",
+]
 
 
 def _run(tmp_path: Path, overrides: list[str]) -> dict:
@@ -52,20 +61,27 @@ def test_depth_range_defaults_follow_the_released_configs() -> None:
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
             return to_run_config(compose(config_name="config", overrides=[f"dataset={name}"])).dataset
 
-    ranges = {name: (dataset(name).eval_depth_near_m, dataset(name).eval_depth_far_m)
-              for name in ("kitti", "euroc", "tum", "synthetic")}  # fmt: skip
+    ranges = {
+        name: (dataset(name).eval_depth_near_m, dataset(name).eval_depth_far_m)
+        for name in ("kitti", "euroc", "tum", "synthetic")
+    }
     assert ranges == {"kitti": (0.1, 30.0), "euroc": (0.1, 10.0), "tum": (0.0, None), "synthetic": (0.0, None)}
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = to_run_config(compose(config_name="config"))
     assert cfg.eval.protocol == "full"  # the default keeps every earlier run's numbers
 
 
-@pytest.mark.parametrize(("args", "says"), [
-    (["eval.protocol=paper"], "eval.protocol: expected one of full, splatam, released, found 'paper'"),
-    (["dataset=kitti", "dataset.eval_depth_far_m=0.05"],
-     "dataset.eval_depth_far_m: expected more than eval_depth_near_m (0.1), found 0.05"),
-    (["dataset.eval_depth_near_m=-1"], "dataset.eval_depth_near_m: expected a number >= 0, found -1"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["eval.protocol=paper"], "eval.protocol: expected one of full, splatam, released, found 'paper'"),
+        (
+            ["dataset=kitti", "dataset.eval_depth_far_m=0.05"],
+            "dataset.eval_depth_far_m: expected more than eval_depth_near_m (0.1), found 0.05",
+        ),
+        (["dataset.eval_depth_near_m=-1"], "dataset.eval_depth_near_m: expected a number >= 0, found -1"),
+    ],
+)
 def test_bad_protocol_settings_are_one_line_exit_2(args: list[str], says: str, tmp_path: Path) -> None:
     res = run_cli([*tiny(args), f"hydra.run.dir={tmp_path}/run", *args])
     assert res.code == 2
@@ -76,8 +92,9 @@ def test_bad_protocol_settings_are_one_line_exit_2(args: list[str], says: str, t
 def test_run_table_names_the_protocol_and_ms_ssim() -> None:
     from bench.sweep.summary import run_table
 
-    text = run_table("ok", Path("/runs/a"), {"eval_protocol": "splatam", "psnr_db": 21.5, "ssim": 0.8,
-                                            "ms_ssim": None}, None)  # fmt: skip
+    text = run_table(
+        "ok", Path("/runs/a"), {"eval_protocol": "splatam", "psnr_db": 21.5, "ssim": 0.8, "ms_ssim": None}, None
+    )
     rows = {line.split()[0]: line.split(None, 1)[1] for line in text.splitlines()}
     assert rows["protocol"] == "splatam"
     assert rows["MS-SSIM"] == "n/a (images under 176 px on a side)"

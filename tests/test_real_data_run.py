@@ -11,10 +11,20 @@ from bench.run.lifecycle import run
 
 @pytest.mark.slow
 def test_kitti06_short_run(shared, tmp_path):
-    overrides = ["dataset=kitti", "seq=06", f"dataset.root={shared}/data/kitti", f"dataset.cache_dir={tmp_path}/cache",
-                 "dataset.downscale=8", "dataset.last=9", "slam.tracking_iters=15", "slam.mapping_iters=20",
-                 "slam.refine_iters=20",
-                 "progress=false", "eval.every=3", "eval.lpips=false"]
+    overrides = [
+        "dataset=kitti",
+        "seq=06",
+        f"dataset.root={shared}/data/kitti",
+        f"dataset.cache_dir={tmp_path}/cache",
+        "dataset.downscale=8",
+        "dataset.last=9",
+        "slam.tracking_iters=15",
+        "slam.mapping_iters=20",
+        "slam.refine_iters=20",
+        "progress=false",
+        "eval.every=3",
+        "eval.lpips=false",
+    ]
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = compose(config_name="config", overrides=overrides)
     res = run(cfg, out_dir=tmp_path / "run")

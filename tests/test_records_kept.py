@@ -15,8 +15,13 @@ import pytest
 
 from tests.test_bad_input import run_cli
 
-FINISHED = {"status": "ok", "error": None, "run": {"strategy": "none", "dataset": "synthetic", "seed": 0},
-            "metrics": {"ate_rmse_m": 0.05}, "provenance": {}}
+FINISHED = {
+    "status": "ok",
+    "error": None,
+    "run": {"strategy": "none", "dataset": "synthetic", "seed": 0},
+    "metrics": {"ate_rmse_m": 0.05},
+    "provenance": {},
+}
 
 
 def finished_dir(path: Path, status: str = "ok") -> dict[str, bytes]:
@@ -84,8 +89,9 @@ def test_refused_sweep_job_keeps_the_finished_record(tmp_path: Path, monkeypatch
     sweep = tmp_path / "sweep"
     dirs = {s: sweep / f"+experiment=tiny,dataset.route_file=route.txt,seed={s}" for s in (0, 1)}
     before = {s: finished_dir(d) for s, d in dirs.items()}
-    res = run_cli(["--multirun", "+experiment=tiny", "dataset.route_file=route.txt", "seed=0,1",
-                   f"hydra.sweep.dir={sweep}"])
+    res = run_cli(
+        ["--multirun", "+experiment=tiny", "dataset.route_file=route.txt", "seed=0,1", f"hydra.sweep.dir={sweep}"]
+    )
     assert "Traceback" not in res.stderr, res.stderr
     assert res.stderr.count("keeps its ok record") == 2, res.stderr
     for s, d in dirs.items():

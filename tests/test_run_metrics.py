@@ -10,8 +10,16 @@ from hydra import compose, initialize_config_dir
 from bench.cli.entry import CONF_DIR  # importing the CLI registers the schemas the configs build on
 from bench.run.lifecycle import run
 
-TINY = ["dataset.width=48", "dataset.height=32", "dataset.n_frames=4", "slam.tracking_iters=4",
-        "slam.mapping_iters=4", "slam.refine_iters=3", "eval.lpips=false", "progress=false"]  # fmt: skip
+TINY = [
+    "dataset.width=48",
+    "dataset.height=32",
+    "dataset.n_frames=4",
+    "slam.tracking_iters=4",
+    "slam.mapping_iters=4",
+    "slam.refine_iters=3",
+    "eval.lpips=false",
+    "progress=false",
+]
 
 
 @pytest.mark.slow
@@ -29,7 +37,6 @@ def test_metrics_json_times_and_keys_agree(tmp_path):
     assert (m["ate_first_frame"], m["ate_last_frame"]) == (0, m["num_frames"] - 1)
     assert "ate_frames" not in m
     assert m["eval_s"] > 0 and m["wall_s"] >= loop + m["refine_s"] + m["eval_s"]
-
 
 
 @pytest.mark.slow
@@ -53,8 +60,9 @@ def test_peaks_count_the_frames_after_the_last_keyframe(tmp_path, monkeypatch):
 
     monkeypatch.setattr(System, "step", step_then_hold)
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=[*TINY, "dataset.n_frames=6", "slam.kf_every=4",
-                                                       "slam.refine_iters=0"])  # fmt: skip
+        cfg = compose(
+            config_name="config", overrides=[*TINY, "dataset.n_frames=6", "slam.kf_every=4", "slam.refine_iters=0"]
+        )
     result = run(cfg, out_dir=tmp_path)
     assert result.status == "ok", result.error
     m = json.loads((tmp_path / "metrics.json").read_text())["metrics"]

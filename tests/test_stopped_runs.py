@@ -29,13 +29,20 @@ def _env() -> dict[str, str]:
 
 
 def start(args: list[str], cwd: Path) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "bench", *args], cwd=cwd, env=_env(), text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    return subprocess.Popen(
+        [sys.executable, "-m", "bench", *args],
+        cwd=cwd,
+        env=_env(),
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
 
 
 def run(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "bench", *args], cwd=cwd, env=_env(), text=True,
-                          capture_output=True, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "bench", *args], cwd=cwd, env=_env(), text=True, capture_output=True, timeout=600
+    )
 
 
 def tracked(run_dir: Path) -> int:
@@ -96,18 +103,21 @@ def test_killed_run_is_reported_interrupted_by_the_next_run(tmp_path: Path) -> N
     again = run([*TINY, "max_frames=2", "slam.refine_iters=0", "eval.every=1", f"hydra.run.dir={run_dir}"], tmp_path)
     assert again.returncode == 0, again.stderr
     assert f"{run_dir}: the previous run was killed while running (pid {proc.pid}); recorded as interrupted" in (
-        again.stdout + again.stderr)
+        again.stdout + again.stderr
+    )
     # another config: its checkpoint does not fit, so the run starts over (tests/test_checkpoint.py resumes one)
     assert f"redoing {run_dir}: its checkpoint was not used: checkpoint.pt is foreign: config changed" in again.stdout
     assert "starting over from frame 0" in again.stdout
     assert json.loads((run_dir / "metrics.json").read_text())["status"] == "ok"
 
 
-
 def _tree(run_dir: Path) -> dict[str, bytes]:
     """Every file of the run dir but a redo's staging dir, by path."""
-    return {str(p.relative_to(run_dir)): p.read_bytes() for p in sorted(run_dir.rglob("*"))
-            if p.is_file() and ".redo" not in p.relative_to(run_dir).parts}
+    return {
+        str(p.relative_to(run_dir)): p.read_bytes()
+        for p in sorted(run_dir.rglob("*"))
+        if p.is_file() and ".redo" not in p.relative_to(run_dir).parts
+    }
 
 
 @pytest.mark.slow
@@ -138,11 +148,21 @@ def test_a_redo_replaces_a_finished_run_only_when_it_finishes(tmp_path: Path) ->
     assert not (run_dir / ".redo").exists() and not (run_dir / "stale_from_old_run.txt").exists()
     assert tracked(run_dir) == 6 and "max_frames=6" in (run_dir / ".hydra" / "overrides.yaml").read_text()
 
+
 def _kitti_args(root: Path, tmp_path: Path) -> list[str]:
     # not +experiment=tiny: its dataset.width/height are synthetic-only settings
-    return ["threads=1", "eval.lpips=false", "slam.mapping_iters=30", "dataset=kitti", "seq=6",
-            f"dataset.root={root}", "dataset.downscale=8",
-            f"dataset.cache_dir={tmp_path / 'cache'}", "slam.refine_iters=0", "eval.every=5"]
+    return [
+        "threads=1",
+        "eval.lpips=false",
+        "slam.mapping_iters=30",
+        "dataset=kitti",
+        "seq=6",
+        f"dataset.root={root}",
+        "dataset.downscale=8",
+        f"dataset.cache_dir={tmp_path / 'cache'}",
+        "slam.refine_iters=0",
+        "eval.every=5",
+    ]
 
 
 @pytest.mark.slow

@@ -62,7 +62,7 @@ def _run_key(path: str | Path) -> tuple[str, ...]:
     (``dataset.route_file=datasets/routes/kitti_06.txt``) nests the run dir one level deeper, so the
     last two parts alone would name several runs alike."""
     parts = Path(path).parts
-    return parts[parts.index("multirun") + 1:] if "multirun" in parts else parts[-2:]
+    return parts[parts.index("multirun") + 1 :] if "multirun" in parts else parts[-2:]
 
 
 def _recorded(name: str) -> tuple[list, dict[tuple[str, str], dict]]:
@@ -107,8 +107,14 @@ def test_study_runs_have_the_recorded_keys_and_settings(name, at_repo):
 def _tiny(job_overrides: tuple[str, ...], kitti_root: Path | None) -> list[str]:
     """One study point at CI size: the synthetic scene through +experiment=tiny, a real one cut to 3 frames."""
     overrides = [o for o in job_overrides if not o.startswith(("threads=", "progress="))]
-    small = ["threads=1", "progress=false", "eval.lpips=false", "slam.mapping_iters=4", "slam.tracking_iters=4",
-             "slam.refine_iters=0"]
+    small = [
+        "threads=1",
+        "progress=false",
+        "eval.lpips=false",
+        "slam.mapping_iters=4",
+        "slam.tracking_iters=4",
+        "slam.refine_iters=0",
+    ]
     if kitti_root is not None:
         overrides = [f"dataset.root={kitti_root}" if o.startswith("dataset.root=") else o for o in overrides]
         return [*overrides, *small, "max_frames=3"]
@@ -146,8 +152,15 @@ hydra:
         mini_none: ["+strategy=none", "seed=0", progress=false]
         mini_pocket: ["+strategy=pocket", "seed=0", progress=false]
 """
-TINY = ["+experiment=tiny", "dataset.n_frames=3", "slam.mapping_iters=2", "slam.tracking_iters=2",
-        "slam.refine_iters=0", "eval.lpips=false", "threads=1"]
+TINY = [
+    "+experiment=tiny",
+    "dataset.n_frames=3",
+    "slam.mapping_iters=2",
+    "slam.tracking_iters=2",
+    "slam.refine_iters=0",
+    "eval.lpips=false",
+    "threads=1",
+]
 
 
 @pytest.mark.slow
@@ -168,8 +181,10 @@ def test_a_user_study_in_conf_runs_resumes_and_reports(tmp_path, monkeypatch):
         assert record["provenance"]["config_files"]["dataset"] == str(tmp_path / "conf" / "dataset" / "synthetic.yaml")
         assert "sway_m: 0.5" in (path.parent / "config.yaml").read_text()  # the user's file changed the run
     # named as Hydra's basic sweeper names a job of the same command line (bools as Python writes them)
-    assert dirs["mini_none"].parent.name == "+experiment=tiny,+strategy=none,dataset.n_frames=3,eval.lpips=False," \
+    assert (
+        dirs["mini_none"].parent.name == "+experiment=tiny,+strategy=none,dataset.n_frames=3,eval.lpips=False,"
         "seed=0,slam.mapping_iters=2,slam.refine_iters=0,slam.tracking_iters=2,threads=1"
+    )
     stamp = {name: path.stat().st_mtime_ns for name, path in dirs.items()}
     code, err = _run_cli(["--multirun", "+study=mini", *TINY])  # again: both resumed, nothing rerun
     assert code == 0, err

@@ -18,9 +18,19 @@ from bench.sweep.summary import (
     varying_overrides,
 )
 
-METRICS = {"ate_rmse_m": 0.0917408946107419, "psnr_db": 23.613324956248807, "ssim": 0.81234, "lpips": None,
-           "fps": 0.4123, "peak_mem_mib": 101.25, "peak_mem_source": "torch_live", "gaussians_peak": 5210,
-           "gaussians_final": 5000, "slam_wall_s": 30.5, "refine_s": 12.25}  # fmt: skip
+METRICS = {
+    "ate_rmse_m": 0.0917408946107419,
+    "psnr_db": 23.613324956248807,
+    "ssim": 0.81234,
+    "lpips": None,
+    "fps": 0.4123,
+    "peak_mem_mib": 101.25,
+    "peak_mem_source": "torch_live",
+    "gaussians_peak": 5210,
+    "gaussians_final": 5000,
+    "slam_wall_s": 30.5,
+    "refine_s": 12.25,
+}
 
 
 def test_run_table_is_aligned_with_units_and_short_numbers():
@@ -42,8 +52,10 @@ def test_sweep_table_shows_only_the_swept_overrides():
     short, shared = varying_overrides(names)
     assert short == ["+strategy=none", "+strategy=pocket"]
     assert shared == ["dataset.n_frames=4", "seed=0"]
-    jobs = [{"num": 1, "name": names[1], "status": "failed", "metrics": {}, "wall_s": None},
-            {"num": 0, "name": names[0], "status": "ok", "metrics": METRICS, "wall_s": 61.0}]  # fmt: skip
+    jobs = [
+        {"num": 1, "name": names[1], "status": "failed", "metrics": {}, "wall_s": None},
+        {"num": 0, "name": names[0], "status": "ok", "metrics": METRICS, "wall_s": 61.0},
+    ]
     table = sweep_table(jobs).splitlines()
     assert table[0].startswith("| run") and "ATE [m]" in table[0] and "peak [MiB]" in table[0]
     assert table[2].startswith("| +strategy=none ") and "0.0917" in table[2] and "1m01s" in table[2]
@@ -56,11 +68,13 @@ def test_sweep_progress_and_summary_file(tmp_path, monkeypatch):
     cfg = _sweep_cfg(tmp_path, ["+strategy=none,pocket,area", "seed=0"])
     callback = SweepSummary()
     callback.on_multirun_start(cfg)
-    line = record_job(tmp_path, {"num": 0, "name": "+strategy=none,seed=0", "status": "ok", "metrics": METRICS,
-                                 "wall_s": 5.0})  # fmt: skip
+    line = record_job(
+        tmp_path, {"num": 0, "name": "+strategy=none,seed=0", "status": "ok", "metrics": METRICS, "wall_s": 5.0}
+    )
     assert line.startswith("sweep: 1/3 runs done in ") and "ETA" in line
-    last = record_job(tmp_path, {"num": 2, "name": "+strategy=area,seed=0", "status": "lost", "metrics": {},
-                                 "wall_s": 4.0})  # fmt: skip
+    last = record_job(
+        tmp_path, {"num": 2, "name": "+strategy=area,seed=0", "status": "lost", "metrics": {}, "wall_s": 4.0}
+    )
     assert last.startswith("sweep: 2/3 runs done") and "ETA" in last
     callback.on_multirun_end(cfg)
     summary = (tmp_path / "summary.md").read_text()
@@ -100,6 +114,6 @@ def test_format_duration():
 
 
 def test_jobs_record_survives_a_cut_line(tmp_path):
-    (tmp_path / JOBS_FILE).write_text(json.dumps({"start": 1.0, "total": 2}) + "\n{\"num\": 0, \"sta")
+    (tmp_path / JOBS_FILE).write_text(json.dumps({"start": 1.0, "total": 2}) + '\n{"num": 0, "sta')
     line = record_job(tmp_path, {"num": 1, "name": "x=1", "status": "ok", "metrics": {}, "wall_s": 1.0})
     assert line.startswith("sweep: 1/2 runs done")

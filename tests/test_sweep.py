@@ -11,8 +11,16 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-TINY = ["dataset.width=48", "dataset.height=32", "dataset.n_frames=4", "slam.tracking_iters=4",
-        "slam.mapping_iters=4", "slam.refine_iters=4", "progress=false", "eval.lpips=false"]
+TINY = [
+    "dataset.width=48",
+    "dataset.height=32",
+    "dataset.n_frames=4",
+    "slam.tracking_iters=4",
+    "slam.mapping_iters=4",
+    "slam.refine_iters=4",
+    "progress=false",
+    "eval.lpips=false",
+]
 
 
 def sweep(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:

@@ -78,8 +78,9 @@ def test_jobs_that_differ_in_a_left_out_key_get_their_own_dirs(key: str, tmp_pat
     assert len({r[0] for r in table_rows(res.stdout)}) == 2  # the summary tells the jobs apart
 
 
-def test_a_failed_job_does_not_overwrite_a_sibling_that_differs_in_a_left_out_key(tmp_path: Path,
-                                                                                   runs: list[Path]) -> None:
+def test_a_failed_job_does_not_overwrite_a_sibling_that_differs_in_a_left_out_key(
+    tmp_path: Path, runs: list[Path]
+) -> None:
     """``checkpoint.every=2,-1,0``: three dirs; the refused middle job leaves the first job's record."""
     res = run_cli(["--multirun", "+experiment=tiny", "checkpoint.every=2,-1,0", f"hydra.sweep.dir={tmp_path}"])
     assert res.code == 0, res.stderr
@@ -87,7 +88,10 @@ def test_a_failed_job_does_not_overwrite_a_sibling_that_differs_in_a_left_out_ke
     status = [json.loads((d / "metrics.json").read_text())["status"] for d in runs]
     assert status == ["ok", "failed", "ok"]
     assert [r[:2] for r in table_rows(res.stdout)] == [
-        ["checkpoint.every=2", "ok"], ["checkpoint.every=-1", "failed"], ["checkpoint.every=0", "ok"]]
+        ["checkpoint.every=2", "ok"],
+        ["checkpoint.every=-1", "failed"],
+        ["checkpoint.every=0", "ok"],
+    ]
 
 
 def test_identical_jobs_keep_hydras_dir_name(tmp_path: Path, runs: list[Path]) -> None:
@@ -108,8 +112,15 @@ def test_summary_and_progress_count_a_job_that_cannot_be_composed(tmp_path: Path
 
 def test_jobs_keep_their_numbers_when_one_before_them_is_refused(tmp_path: Path, runs: list[Path]) -> None:
     """With a subdir by job number, the refused job's record and a later job's run never share a dir."""
-    res = run_cli(["--multirun", "+experiment=tiny", "seed=abc,0", f"hydra.sweep.dir={tmp_path}",
-                   "hydra.sweep.subdir=${hydra.job.num}"])
+    res = run_cli(
+        [
+            "--multirun",
+            "+experiment=tiny",
+            "seed=abc,0",
+            f"hydra.sweep.dir={tmp_path}",
+            "hydra.sweep.subdir=${hydra.job.num}",
+        ]
+    )
     assert res.code == 0, res.stderr
     assert runs == [tmp_path.resolve() / "1"]
     assert json.loads((tmp_path / "0" / "metrics.json").read_text())["status"] == "failed"
@@ -140,13 +151,17 @@ def test_a_study_sweep_lists_every_job(tmp_path: Path, runs: list[Path], monkeyp
     assert "1 job: 1 ok" in (tmp_path / "multirun" / "plan_b" / "summary.md").read_text()
 
 
-@pytest.mark.parametrize(("args", "says"), [
-    (["+experiment=tiny", "threads=0", "seed=0,1"], "threads: expected an integer >= 1 or null, found 0"),
-    (["+study=nonexistent"], "unknown study 'nonexistent': expected a file conf/study/nonexistent.yaml"),
-    (["+experiment=tiny", "dataset.route_file=/no/such/route.txt", "seed=0,1"], "dataset.route_file: expected"),
-])
-def test_a_bad_setting_every_job_shares_is_refused_before_the_sweep(args: list[str], says: str,
-                                                                    tmp_path: Path, runs: list[Path]) -> None:
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["+experiment=tiny", "threads=0", "seed=0,1"], "threads: expected an integer >= 1 or null, found 0"),
+        (["+study=nonexistent"], "unknown study 'nonexistent': expected a file conf/study/nonexistent.yaml"),
+        (["+experiment=tiny", "dataset.route_file=/no/such/route.txt", "seed=0,1"], "dataset.route_file: expected"),
+    ],
+)
+def test_a_bad_setting_every_job_shares_is_refused_before_the_sweep(
+    args: list[str], says: str, tmp_path: Path, runs: list[Path]
+) -> None:
     res = run_cli(["--multirun", *args, f"hydra.sweep.dir={tmp_path}/sweep"])
     assert res.code == 2, res.stderr
     assert res.stderr.strip() == res.error_line and says in res.error_line

@@ -12,9 +12,18 @@ from hydra import compose, initialize_config_dir
 from bench.cli.entry import CONF_DIR  # importing bench.cli.entry registers the config schemas
 from bench.run.lifecycle import run
 
-TINY = ["dataset.width=48", "dataset.height=32", "dataset.n_frames=9", "slam.tracking_iters=4",
-        "slam.mapping_iters=4", "slam.refine_iters=0", "eval.lpips=false", "progress=false", "threads=1",
-        "+strategy=pocket"]  # fmt: skip
+TINY = [
+    "dataset.width=48",
+    "dataset.height=32",
+    "dataset.n_frames=9",
+    "slam.tracking_iters=4",
+    "slam.mapping_iters=4",
+    "slam.refine_iters=0",
+    "eval.lpips=false",
+    "progress=false",
+    "threads=1",
+    "+strategy=pocket",
+]
 
 
 def _run(tmp_path, name, extra):

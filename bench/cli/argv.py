@@ -31,7 +31,9 @@ def check_overrides(argv: list[str]) -> None:
 
 def split_args(argv: list[str]) -> tuple[bool, list[str], list[str]] | None:
     """(multirun, job overrides, hydra overrides) of a command line; None when it holds other flags."""
-    multirun, job, hyd = False, [], []
+    multirun = False
+    job: list[str] = []
+    hyd: list[str] = []
     for arg in argv:
         if arg in ("-m", "--multirun"):
             multirun = True
@@ -114,10 +116,13 @@ def composition_error(exc: Exception, overrides: list[str]) -> str:
         bad = next((o for o in overrides if o.lstrip("+~").split("=", 1)[0] == key), None)
         parent = key.rsplit(".", 1)[0] if "." in key else ""
         known = _known_keys(parent, [o for o in overrides if o is not bad])
-        return (f"unknown setting '{key}'; {parent or 'the config'} has: {known}; "
-                f"add a new key with +{bad.lstrip('+~') if bad else key + '=VALUE'}")
+        return (
+            f"unknown setting '{key}'; {parent or 'the config'} has: {known}; "
+            f"add a new key with +{bad.lstrip('+~') if bad else key + '=VALUE'}"
+        )
     conv = re.match(r"Value '(.*?)' (?:of type '\w+' )?could not be converted to (\w+)", first) or re.match(
-        r"Value '(.*?)' is not a valid (bool)", first)
+        r"Value '(.*?)' is not a valid (bool)", first
+    )
     if conv:
         kind = {"Integer": "an integer", "Float": "a number", "Boolean": "true or false", "bool": "true or false"}
         what = expected(key) or kind.get(conv[2], conv[2])

@@ -77,7 +77,7 @@ def precheck(argv: list[str]) -> ValidatedRun | None:
     try:
         if multirun:  # what Hydra composes before any job: the command line without its sweeps
             parsed = OverridesParser.create().parse_overrides(job)
-            job = [o.input_line for o in parsed if not o.is_sweep_override()]
+            job = [o.input_line for o in parsed if not o.is_sweep_override() and o.input_line is not None]
         cfg = compose(job)
     except (HydraException, OmegaConfBaseException) as exc:
         raise ConfigError(composition_error(exc, job)) from None
@@ -135,8 +135,14 @@ def _record(hc, status: str, out_dir: object, metrics: dict, wall_s: float | Non
     from bench.sweep.plan import job_name
     from bench.sweep.summary import record_job
 
-    job = {"num": hc.job.num, "name": job_name(list(hc.overrides.task)), "status": status, "dir": str(out_dir),
-           "metrics": dict(metrics), "wall_s": wall_s}  # fmt: skip
+    job = {
+        "num": hc.job.num,
+        "name": job_name(list(hc.overrides.task)),
+        "status": status,
+        "dir": str(out_dir),
+        "metrics": dict(metrics),
+        "wall_s": wall_s,
+    }
     print(record_job(hc.sweep.dir, job), file=sys.stderr, flush=True)
 
 

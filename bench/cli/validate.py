@@ -39,17 +39,25 @@ def validate(cfg: Any) -> ValidatedRun:
     tree = {k: v for k, v in plain(cfg).items() if k != "hydra"}
     known = set(RunConfig.__dataclass_fields__)
     if set(tree) - known:
-        raise ConfigError(f"unknown setting {', '.join(repr(u) for u in sorted(set(tree) - known))}; "
-                          f"expected one of: {', '.join(sorted(known))}")
+        raise ConfigError(
+            f"unknown setting {', '.join(repr(u) for u in sorted(set(tree) - known))}; "
+            f"expected one of: {', '.join(sorted(known))}"
+        )
     check_rules(tree, "", RunConfig)  # the run's own settings first: a dataset setting may interpolate one
-    for group, cls in (("prune", PruneConfig), ("memory", MemoryConfig), ("eval", EvalConfig), ("viz", VizConfig),
-                       ("checkpoint", CheckpointConfig)):
+    for group, cls in (
+        ("prune", PruneConfig),
+        ("memory", MemoryConfig),
+        ("eval", EvalConfig),
+        ("viz", VizConfig),
+        ("checkpoint", CheckpointConfig),
+    ):
         if isinstance(tree.get(group), Mapping):  # +eval.evry=2 got past composition: say it in these words
             unknown_keys(group, cls, tree[group])
     ds = tree.get("dataset")
     if not isinstance(ds, Mapping) or not ds.get("name"):
-        raise ConfigError(f"dataset: expected a dataset group with a name (dataset=synthetic|kitti|euroc|tum), "
-                          f"found {ds!r}")
+        raise ConfigError(
+            f"dataset: expected a dataset group with a name (dataset=synthetic|kitti|euroc|tum), found {ds!r}"
+        )
     strategy = tree.get("strategy")
     if strategy is not None and (not isinstance(strategy, Mapping) or not isinstance(strategy.get("name"), str)):
         raise ConfigError(f"strategy: expected a group with a name (+strategy=NAME), found {strategy!r}")

@@ -65,8 +65,9 @@ class EvalConfig:
         frames = list(self.at_frames)
         ok = all(isinstance(n, int) and not isinstance(n, bool) and n >= 3 for n in frames)
         if not ok or frames != sorted(set(frames)):
-            raise ConfigError(f"eval.at_frames: expected increasing frame counts >= 3 (e.g. [50,100,200]), "
-                              f"found {frames}")
+            raise ConfigError(
+                f"eval.at_frames: expected increasing frame counts >= 3 (e.g. [50,100,200]), found {frames}"
+            )
 
 
 @dataclass

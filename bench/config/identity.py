@@ -24,8 +24,9 @@ from bench.run.resume import input_fingerprint, resume_key
 NOT_HASHED = ("progress", "out_dir", "resume", "checkpoint")
 
 
-def run_keys(cfg: RunConfig | Mapping[str, Any], tree: Mapping[str, Any] | None = None,
-             seq: FrameSequence | None = None) -> dict[str, Any]:
+def run_keys(
+    cfg: RunConfig | Mapping[str, Any], tree: Mapping[str, Any] | None = None, seq: FrameSequence | None = None
+) -> dict[str, Any]:
     """The ``run`` block of metrics.json.
 
     ``cfg`` typed (or a composed ``DictConfig``): the keys as reported; with ``tree`` (the resolved
@@ -34,10 +35,11 @@ def run_keys(cfg: RunConfig | Mapping[str, Any], tree: Mapping[str, Any] | None 
     settings as given (a job that never composed): the names as given, the rest null.
     """
     if isinstance(cfg, DictConfig):
+        given = cfg
         try:
-            cfg = to_run_config(cfg)
+            cfg = to_run_config(given)
         except BenchError:  # the bad value may be one of the keys: record the names as given
-            return _as_given(cfg)
+            return _as_given(given)
     if not isinstance(cfg, RunConfig):
         return _as_given(cfg)
     prunes = cfg.strategy is not None and cfg.strategy.name != "none"
@@ -63,10 +65,14 @@ def _as_given(cfg: Mapping[str, Any]) -> dict[str, Any]:
         return node.get(key) if isinstance(node, Mapping) else node
 
     dataset, seq, seed = str(get("dataset") or "unknown"), cfg.get("seq"), cfg.get("seed")
-    return {"strategy": str(get("strategy") or "none"), "dataset": dataset,
-            "seq": None if seq is None else canonical_seq(dataset, seq),
-            "seed": seed if isinstance(seed, int) and not isinstance(seed, bool) and seed >= 0 else None,
-            "keep_ratio": None, "slam_preset": None if get("slam") is None else str(get("slam"))}
+    return {
+        "strategy": str(get("strategy") or "none"),
+        "dataset": dataset,
+        "seq": None if seq is None else canonical_seq(dataset, seq),
+        "seed": seed if isinstance(seed, int) and not isinstance(seed, bool) and seed >= 0 else None,
+        "keep_ratio": None,
+        "slam_preset": None if get("slam") is None else str(get("slam")),
+    }
 
 
 def dataset_name(dataset: Any) -> str:

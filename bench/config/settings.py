@@ -51,11 +51,18 @@ class Rule:
         elif self.choices:
             text = "one of " + ", ".join(self.choices)
         else:
-            text = {"int": "an integer", "float": "a number", "bool": "true or false", "str": "a string",
-                    "path": "a path to a file", "seq": "a sequence name"}[self.kind]
+            text = {
+                "int": "an integer",
+                "float": "a number",
+                "bool": "true or false",
+                "str": "a string",
+                "path": "a path to a file",
+                "seq": "a sequence name",
+            }[self.kind]
             if self.lo is not None and self.hi is not None:
-                text += (f" in {'(' if self.lo_open else '['}{_fmt(self.lo)}, {_fmt(self.hi)}"
-                         f"{')' if self.hi_open else ']'}")
+                text += (
+                    f" in {'(' if self.lo_open else '['}{_fmt(self.lo)}, {_fmt(self.hi)}{')' if self.hi_open else ']'}"
+                )
             elif self.lo is not None:
                 text += f" {'>' if self.lo_open else '>='} {_fmt(self.lo)}"
             elif self.hi is not None:
@@ -192,8 +199,10 @@ def unknown_keys(prefix: str, cls: type, values: Mapping[str, Any]) -> None:
     fields = {f.name for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(values) - fields)
     if unknown:
-        raise ConfigError(f"{prefix} has no setting {', '.join(repr(u) for u in unknown)}; expected one of: "
-                          f"{', '.join(sorted(fields)) or '(none)'}")
+        raise ConfigError(
+            f"{prefix} has no setting {', '.join(repr(u) for u in unknown)}; expected one of: "
+            f"{', '.join(sorted(fields)) or '(none)'}"
+        )
 
 
 def describe_error(exc: OmegaConfBaseException, prefix: str = "") -> str:
@@ -204,7 +213,7 @@ def describe_error(exc: OmegaConfBaseException, prefix: str = "") -> str:
     key = ".".join(filter(None, (prefix, getattr(exc, "full_key", None) or "")))
     owner = getattr(exc, "object_type", None)
     unknown = isinstance(exc, (ConfigKeyError, ConfigAttributeError))
-    if unknown and owner is not None and dataclasses.is_dataclass(owner):
+    if unknown and isinstance(owner, type) and dataclasses.is_dataclass(owner):  # object_type: a class or None
         known = ", ".join(f.name for f in dataclasses.fields(owner))
         where = key.rpartition(".")[0] or owner.__name__
         return f"{where}: expected a setting among {known}, found {key.rpartition('.')[2]}"

@@ -36,8 +36,10 @@ class DatasetConfig:
     def __post_init__(self) -> None:
         check_rules(self, "dataset.")  # every field's rule, the subclasses' included
         if self.eval_depth_far_m is not None and self.eval_depth_far_m <= self.eval_depth_near_m:
-            raise ConfigError(f"dataset.eval_depth_far_m: expected more than eval_depth_near_m "
-                              f"({self.eval_depth_near_m:g}), found {self.eval_depth_far_m:g}")
+            raise ConfigError(
+                f"dataset.eval_depth_far_m: expected more than eval_depth_near_m "
+                f"({self.eval_depth_near_m:g}), found {self.eval_depth_far_m:g}"
+            )
 
     def default_sequence(self) -> str | None:
         """The sequence a run uses when none is named (recorded as ``run.seq``)."""

@@ -39,8 +39,10 @@ def load_cfg(name: str, overrides: list[str]) -> Any:
     files = group_files("dataset")  # ./conf/dataset/ first, then the shipped ones
     if name not in files:
         found = ", ".join(sorted(files)) or "(none)"
-        raise ConfigError(f"dataset config not found: expected {CONF_DIR / 'dataset' / name}.yaml or "
-                          f"conf/dataset/{name}.yaml, found configs: {found}")
+        raise ConfigError(
+            f"dataset config not found: expected {CONF_DIR / 'dataset' / name}.yaml or "
+            f"conf/dataset/{name}.yaml, found configs: {found}"
+        )
     dotlist = []
     for item in overrides:
         if "=" not in item:

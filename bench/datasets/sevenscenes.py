@@ -108,12 +108,16 @@ def read_intrinsics(seq_dir: Path, root: Path) -> tuple[np.ndarray, Path | None]
         except ValueError:
             K = np.zeros(0)
         if K.size != 9 or not np.isfinite(K).all():
-            raise DatasetError(f"{DATASET} intrinsics {path}: expected a 3x3 matrix (9 finite numbers), "
-                               f"found {path.read_text()[:60]!r}")
+            raise DatasetError(
+                f"{DATASET} intrinsics {path}: expected a 3x3 matrix (9 finite numbers), "
+                f"found {path.read_text()[:60]!r}"
+            )
         K = K.reshape(3, 3)
         if not (K[0, 0] > 0 and K[1, 1] > 0) or np.abs(K[2] - [0.0, 0.0, 1.0]).max() > 1e-9:
-            raise DatasetError(f"{DATASET} intrinsics {path}: expected positive focal lengths and a last row "
-                               f"0 0 1, found fx={K[0, 0]:g} fy={K[1, 1]:g}, last row {K[2].tolist()}")
+            raise DatasetError(
+                f"{DATASET} intrinsics {path}: expected positive focal lengths and a last row "
+                f"0 0 1, found fx={K[0, 0]:g} fy={K[1, 1]:g}, last row {K[2].tolist()}"
+            )
         return K, path
     fx, fy, cx, cy = DEFAULT_INTRINSICS
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), None
@@ -145,8 +149,12 @@ def list_frames(seq_dir: Path) -> tuple[list[int], list[Path], list[Path], list[
                 f"{DATASET} frame {n:06d} in {seq_dir}: expected frame-{n:06d}.{names[missing[0]]} beside "
                 f"{have}, found none"
             )
-    return (numbers, [found[n]["color"] for n in numbers], [found[n]["depth"] for n in numbers],
-            [found[n]["pose"] for n in numbers])
+    return (
+        numbers,
+        [found[n]["color"] for n in numbers],
+        [found[n]["depth"] for n in numbers],
+        [found[n]["pose"] for n in numbers],
+    )
 
 
 class SevenScenesSequence(TumSequence):
@@ -166,8 +174,10 @@ class SevenScenesSequence(TumSequence):
         raw = realio.read_image(path, DATASET, "unchanged")
         if raw.dtype != np.uint16 or raw.ndim != 2:
             chans = 1 if raw.ndim == 2 else raw.shape[2]
-            raise DatasetError(f"{DATASET} depth image {path}: expected a 16-bit single-channel png, "
-                               f"found {raw.dtype} with {chans} channels")
+            raise DatasetError(
+                f"{DATASET} depth image {path}: expected a 16-bit single-channel png, "
+                f"found {raw.dtype} with {chans} channels"
+            )
         self._check_size(raw, path, "depth")
         return raw
 
@@ -241,7 +251,14 @@ def open_sequence(cfg: SevenScenesConfig | Mapping[str, Any]) -> FrameSequence:
         max_depth_m=cfg.max_depth_m,
     )
     check_sizes(sequence)
-    LOG.info("%s %s: %d frames (%dx%d, intrinsics from %s)", DATASET, folder, len(sequence), width, height,
-             k_path or "the dataset's documented values")
+    LOG.info(
+        "%s %s: %d frames (%dx%d, intrinsics from %s)",
+        DATASET,
+        folder,
+        len(sequence),
+        width,
+        height,
+        k_path or "the dataset's documented values",
+    )
     sequence.source_files = (*([k_path] if k_path else []), *pose_paths, *rgb_paths, *depth_paths)
     return sequence

@@ -77,7 +77,7 @@ class StereoConfig(RecordedConfig):
 def compute_disparity(left: np.ndarray, right: np.ndarray, params: StereoParams) -> np.ndarray:
     """Disparity in px [H, W] float32 of rectified uint8 gray images [H, W]; <= 0 is invalid."""
     area = params.block_size * params.block_size
-    matcher = cv2.StereoSGBM_create(
+    matcher = cv2.StereoSGBM.create(
         minDisparity=params.min_disparity,
         numDisparities=params.num_disparities,
         blockSize=params.block_size,

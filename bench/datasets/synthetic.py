@@ -91,8 +91,14 @@ def _side_boxes(rng: np.random.Generator, side: float, start: float, end: float)
         w = rng.uniform(0.25, 0.6)
         height = rng.uniform(2.5, 6.0)
         tint = rng.uniform(0.2, 0.9, 3)
-        boxes.append(Box(np.array([x0 - w / 2, CAMERA_HEIGHT_M - height, z]),
-                         np.array([x0 + w / 2, CAMERA_HEIGHT_M, z + w]), 2, tint))
+        boxes.append(
+            Box(
+                np.array([x0 - w / 2, CAMERA_HEIGHT_M - height, z]),
+                np.array([x0 + w / 2, CAMERA_HEIGHT_M, z + w]),
+                2,
+                tint,
+            )
+        )
         z += rng.uniform(3.0, 9.0)
     return boxes
 
@@ -165,8 +171,8 @@ def _grid_waypoints(seed: int, length_m: float) -> np.ndarray:
     turn = 1 if rng.random() < 0.5 else -1  # +1: the loop turns right (+x when heading +z), -1: left
     b = GRID_BLOCK_M
     # start, the first crossing, round the block, back through the first crossing onto the first street
-    pts = [(0.0, -0.5 * b), (0.0, 0.0), (0.0, b), (turn * b, b), (turn * b, 0.0), (0.0, 0.0), (0.0, b)]
-    pts = [np.array(p) for p in pts]
+    corners = [(0.0, -0.5 * b), (0.0, 0.0), (0.0, b), (turn * b, b), (turn * b, 0.0), (0.0, 0.0), (0.0, b)]
+    pts = [np.array(p) for p in corners]
     heading = np.array([0.0, 1.0])
     total = 5.5 * b
     while total < length_m + 2 * b:
@@ -218,8 +224,13 @@ def path_poses(track: np.ndarray, n_frames: int, speed_m_per_frame: float, sway_
         q = np.clip(q, 0.0, s[-1])
         base = np.stack([np.interp(q, s, dense[:, 0]), np.interp(q, s, dense[:, 1])], -1)
         h = 0.05
-        tan = np.stack([np.interp(q + h, s, dense[:, 0]) - np.interp(q - h, s, dense[:, 0]),
-                        np.interp(q + h, s, dense[:, 1]) - np.interp(q - h, s, dense[:, 1])], -1)
+        tan = np.stack(
+            [
+                np.interp(q + h, s, dense[:, 0]) - np.interp(q - h, s, dense[:, 0]),
+                np.interp(q + h, s, dense[:, 1]) - np.interp(q - h, s, dense[:, 1]),
+            ],
+            -1,
+        )
         tan /= np.linalg.norm(tan, axis=1, keepdims=True)
         normal = np.stack([tan[:, 1], -tan[:, 0]], -1)  # +x when heading +z
         return base + (sway_m * np.sin(omega * q))[:, None] * normal
@@ -259,8 +270,10 @@ def read_route_file(path: str, n_frames: int) -> np.ndarray:
         except ValueError:
             vals = []
         if len(vals) != 12 or not all(math.isfinite(v) for v in vals):
-            raise DatasetError(f"synthetic route_file {p}: expected 12 finite numbers per line (KITTI poses), "
-                               f"found '{line.strip()[:60]}' on line {k}")
+            raise DatasetError(
+                f"synthetic route_file {p}: expected 12 finite numbers per line (KITTI poses), "
+                f"found '{line.strip()[:60]}' on line {k}"
+            )
         rows.append(vals)
         if len(rows) == n_frames:
             break
@@ -269,12 +282,16 @@ def read_route_file(path: str, n_frames: int) -> np.ndarray:
     m = np.asarray(rows).reshape(-1, 3, 4)
     ground = m[:, [0, 2], 3]  # [n, 2] the ground track: the street is laid along it
     if np.linalg.norm(np.diff(ground, axis=0), axis=1).sum() <= 1e-6:
-        raise DatasetError(f"synthetic route_file {p}: expected a route that moves along the ground, found all "
-                           f"{len(m)} poses at one spot")
+        raise DatasetError(
+            f"synthetic route_file {p}: expected a route that moves along the ground, found all "
+            f"{len(m)} poses at one spot"
+        )
     fwd = m[:, [0, 2], 2]  # [n, 2] the camera's z axis on the ground
     if (np.linalg.norm(fwd, axis=1) < 1e-6).any():
-        raise DatasetError(f"synthetic route_file {p}: expected cameras looking along the ground, found one "
-                           "looking straight up or down")
+        raise DatasetError(
+            f"synthetic route_file {p}: expected cameras looking along the ground, found one "
+            "looking straight up or down"
+        )
     return _poses_from_track(m[:, [0, 2], 3], fwd, np.zeros(len(m)))
 
 
@@ -406,9 +423,21 @@ class SyntheticSequence(TimedSequence):
             segs = _grid_streets(self.poses[:, [0, 2], 3])
             self.streets = _street_map(segs)
             # each street segment draws its own buildings from the scene seed and its place in the grid
-            boxes = [box for seg in segs for box in _along_track_boxes(
-                np.random.default_rng([seed, 11, *(int(v) + 2**20 for v in np.round(seg[0] / GRID_BLOCK_M)),
-                                       int(seg[1, 0] != seg[0, 0])]), seg)]
+            boxes = [
+                box
+                for seg in segs
+                for box in _along_track_boxes(
+                    np.random.default_rng(
+                        [
+                            seed,
+                            11,
+                            *(int(v) + 2**20 for v in np.round(seg[0] / GRID_BLOCK_M)),
+                            int(seg[1, 0] != seg[0, 0]),
+                        ]
+                    ),
+                    seg,
+                )
+            ]
             boxes = _keep_clear(boxes, self.streets, self.poses[:, [0, 2], 3])
             name = f"synthetic/grid/{seed}"
         else:
@@ -507,15 +536,28 @@ class SyntheticSequence(TimedSequence):
         rect[:, 2:4] = np.clip(rect[:, 2:4], 0, W - 1)
         in_image = np.ones(len(dist), dtype=bool)
         if front.any():
-            in_image[front] = ((v[front].max(1) - oy >= -1) & (v[front].min(1) - oy <= H)
-                               & (u[front].max(1) - ox >= -1) & (u[front].min(1) - ox <= W))
+            in_image[front] = (
+                (v[front].max(1) - oy >= -1)
+                & (v[front].min(1) - oy <= H)
+                & (u[front].max(1) - ox >= -1)
+                & (u[front].min(1) - ox <= W)
+            )
         idx = np.nonzero(keep & in_image)[0]
         idx = idx[np.argsort(dist[idx], kind="stable")]
         return idx, dist[idx], rect[idx]
 
-    def _hit_boxes(self, o: np.ndarray, d: np.ndarray, dn: np.ndarray, t_best: np.ndarray, kind: np.ndarray,
-                   normal_axis: np.ndarray, boxes: np.ndarray, rects: np.ndarray | None = None,
-                   dists: np.ndarray | None = None) -> None:
+    def _hit_boxes(
+        self,
+        o: np.ndarray,
+        d: np.ndarray,
+        dn: np.ndarray,
+        t_best: np.ndarray,
+        kind: np.ndarray,
+        normal_axis: np.ndarray,
+        boxes: np.ndarray,
+        rects: np.ndarray | None = None,
+        dists: np.ndarray | None = None,
+    ) -> None:
         """Slab-test the rays against ``boxes`` and keep each ray's nearest hit (ties: the lower box index).
 
         Updates ``t_best``, ``kind`` and ``normal_axis`` [P] in place. With ``rects``/``dists`` (from
@@ -543,6 +585,7 @@ class SyntheticSequence(TimedSequence):
             kind[closer] = boxes[j[closer]]
             normal_axis[closer] = np.nanargmax(tmin[np.arange(P), j], axis=1)[closer]
             return
+        assert dists is not None  # rects and dists come together, from _box_rects
         W = self.width
         reach = t_best * dn  # [P] distance to the nearest hit so far (inf: sky)
         for b, dist, (r0, r1, c0, c1) in zip(boxes, dists, rects, strict=True):
@@ -621,8 +664,11 @@ class SyntheticSequence(TimedSequence):
         # road: dark asphalt, gentle noise, dashed centre line and edge lines
         g = kind == -2
         tex = self._texture_seed
-        asphalt = (0.27 + 0.12 * value_noise(p[:, 0] * 0.7, p[:, 2] * 0.7, tex + 1)
-                   + 0.06 * value_noise(p[:, 0] * 3, p[:, 2] * 3, tex + 4))  # patches and wear, no repeats
+        asphalt = (
+            0.27
+            + 0.12 * value_noise(p[:, 0] * 0.7, p[:, 2] * 0.7, tex + 1)
+            + 0.06 * value_noise(p[:, 0] * 3, p[:, 2] * 3, tex + 4)
+        )  # patches and wear, no repeats
         lat, along = self._road(p, g)
         lane = ((lat < 0.12) & ((along % 6.0) < 3.0)) | (np.abs(lat - 3.6) < 0.12)
         road = np.where(lane, 0.9, asphalt)

@@ -24,6 +24,7 @@ def order_problem(stamps_s: np.ndarray, line_numbers: list[int], allow_equal: bo
     t, prev = stamps_s[i], stamps_s[i - 1]
     line, prev_line = line_numbers[i], line_numbers[i - 1]
     if t == prev:
-        return (f"line {line}: expected strictly increasing timestamps, found {t:.9f} again "
-                f"(duplicate of line {prev_line})")
+        return (
+            f"line {line}: expected strictly increasing timestamps, found {t:.9f} again (duplicate of line {prev_line})"
+        )
     return f"line {line}: expected strictly increasing timestamps, found {t:.9f} after {prev:.9f} (line {prev_line})"

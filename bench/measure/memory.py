@@ -199,7 +199,8 @@ class _ProfilerLive:
             self._start()
         events = result.events()  # only memory events: no op activity was requested
         n, kineto_event = len(events), torch._C._autograd._KinetoEvent
-        nbytes = np.fromiter(map(kineto_event.nbytes, events), np.int64, n)  # [E] +alloc / -free
+        # [E] +alloc / -free; torch's stub of _KinetoEvent leaves out nbytes, which the class has
+        nbytes = np.fromiter(map(kineto_event.nbytes, events), np.int64, n)  # type: ignore[attr-defined]
         start_ns = np.fromiter(map(kineto_event.start_ns, events), np.int64, n)  # [E]
         device_index = np.fromiter(map(kineto_event.device_index, events), np.int64, n)  # [E]
         nbytes[device_index >= 0] = 0  # CPU events carry index -1; CUDA/XPU allocators report >= 0
@@ -207,8 +208,8 @@ class _ProfilerLive:
             nbytes = nbytes[np.argsort(start_ns, kind="stable")]
         if self._pending_mark:
             a, b = self._marker_b
-            hits = np.flatnonzero(nbytes[:-3] == a) if len(nbytes) >= 4 else np.zeros(0, np.int64)
-            hits = [i for i in hits if nbytes[i + 1] == b and nbytes[i + 2] == -b and nbytes[i + 3] == -a]
+            starts = np.flatnonzero(nbytes[:-3] == a) if len(nbytes) >= 4 else np.zeros(0, np.int64)
+            hits = [i for i in starts if nbytes[i + 1] == b and nbytes[i + 2] == -b and nbytes[i + 3] == -a]
             cut = int(hits[-1]) + 4 if hits else 0  # no mark found: treat every event as in-window
             self.live_b += int(nbytes[:cut].sum())
             self.peak_b = self.live_b
@@ -372,7 +373,8 @@ class MemoryProbe:
             out["cpu_rss_peak_mib"] = self._sampler.peak_bytes() / MIB
         for key, before in self._held.items():
             if before is not None:
-                out[key] = before if out[key] is None else max(before, out[key])
+                now = out[key]
+                out[key] = before if now is None else max(before, now)
         return out
 
     @contextlib.contextmanager

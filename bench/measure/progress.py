@@ -70,8 +70,11 @@ class Phase:
             extra = "".join(f", {k}={v}" for k, v in self.postfix.items())
             note = f" ({note})" if note else ""
             elapsed = format_duration(time.perf_counter() - self._t0)
-            print(f"{self.desc}: {self.done}/{self.total} {self.unit}s in {elapsed}{extra}{note}", file=self.stream,
-                  flush=True)  # fmt: skip
+            print(
+                f"{self.desc}: {self.done}/{self.total} {self.unit}s in {elapsed}{extra}{note}",
+                file=self.stream,
+                flush=True,
+            )
 
     def __enter__(self) -> Phase:
         return self

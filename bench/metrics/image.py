@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, cast
 
 import torch
 from torchmetrics.functional.image import (
@@ -82,12 +82,14 @@ def psnr_db(pred: torch.Tensor, target: torch.Tensor) -> float:
 
 
 # the SSIM window and constants, shared by SSIM and every scale of MS-SSIM
-_WINDOW = dict(gaussian_kernel=True, sigma=SSIM_SIGMA_PX, kernel_size=SSIM_KERNEL_PX, data_range=DATA_RANGE,
-               k1=SSIM_K1, k2=SSIM_K2)
+_WINDOW: dict[str, Any] = dict(
+    gaussian_kernel=True, sigma=SSIM_SIGMA_PX, kernel_size=SSIM_KERNEL_PX, data_range=DATA_RANGE, k1=SSIM_K1, k2=SSIM_K2
+)
 
 
-def _sized_bchw(pred: torch.Tensor, target: torch.Tensor, metric: str, min_px: int,
-                why: str = "") -> tuple[torch.Tensor, torch.Tensor]:
+def _sized_bchw(
+    pred: torch.Tensor, target: torch.Tensor, metric: str, min_px: int, why: str = ""
+) -> tuple[torch.Tensor, torch.Tensor]:
     """``_to_bchw``, and one ``MetricError`` line when the shorter side is under ``min_px``."""
     p, t = _to_bchw(pred, target)
     if min(p.shape[-2:]) < min_px:
@@ -111,7 +113,8 @@ def region_psnr_db(sq_err: torch.Tensor, sel: torch.Tensor | None = None) -> flo
 def ssim(pred: torch.Tensor, target: torch.Tensor) -> float:
     """Mean SSIM with the module's convention (Gaussian 11 / 1.5, K1 0.01, K2 0.03, range 1)."""
     p, t = _sized_bchw(pred, target, "ssim", SSIM_KERNEL_PX)
-    return float(structural_similarity_index_measure(p, t, **_WINDOW))
+    # a Tensor: the union return type covers return_full_image / return_contrast_sensitivity, not asked for here
+    return float(cast(torch.Tensor, structural_similarity_index_measure(p, t, **_WINDOW)))
 
 
 def psnr_channel_mean_db(pred: torch.Tensor, target: torch.Tensor) -> float:

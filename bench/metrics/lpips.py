@@ -140,12 +140,13 @@ class LPIPS:
         features.load_state_dict(fstate, strict=True)
 
         lin_state = _load_state(lin_path, "lpips linear weights")
-        lins = nn.ModuleList(nn.Conv2d(c, 1, kernel_size=1, bias=False) for c in LPIPS_CHANNELS)
-        for i, c in enumerate(LPIPS_CHANNELS):
+        convs = [nn.Conv2d(c, 1, kernel_size=1, bias=False) for c in LPIPS_CHANNELS]
+        for i, (c, conv) in enumerate(zip(LPIPS_CHANNELS, convs, strict=True)):
             key = f"lin{i}.model.1.weight"  # torchmetrics names (dropout at .0, conv at .1)
             if key not in lin_state or tuple(lin_state[key].shape) != (1, c, 1, 1):
                 raise MetricError(f"lpips linear weights {lin_path}: expected '{key}' of shape [1, {c}, 1, 1]")
-            lins[i].weight.data.copy_(lin_state[key].float())
+            conv.weight.data.copy_(lin_state[key].float())
+        lins = nn.ModuleList(convs)
         logger.info("lpips: alexnet backbone from %s, linear heads from %s", found, lin_path)
         return cls(features, lins, device)
 

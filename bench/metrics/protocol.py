@@ -74,18 +74,22 @@ def protocol_mask(
         return None
     if protocol == "splatam":
         if depth_m is None or depth_m.ndim != 2:
-            raise MetricError(f"protocol splatam: expected depth [h, w], found "
-                              f"{None if depth_m is None else list(depth_m.shape)}")
+            raise MetricError(
+                f"protocol splatam: expected depth [h, w], found {None if depth_m is None else list(depth_m.shape)}"
+            )
         if depth_far_m is not None and depth_far_m <= depth_near_m:
-            raise MetricError(f"protocol splatam: expected depth_near_m < depth_far_m, found {depth_near_m} "
-                              f"and {depth_far_m}")
-        valid = (depth_m > max(depth_near_m, 0.0))  # [H, W]; NaN compares False: invalid
+            raise MetricError(
+                f"protocol splatam: expected depth_near_m < depth_far_m, found {depth_near_m} and {depth_far_m}"
+            )
+        valid = depth_m > max(depth_near_m, 0.0)  # [H, W]; NaN compares False: invalid
         if depth_far_m is not None:
             valid &= depth_m < depth_far_m
         return valid
     if silhouette is None or silhouette.ndim != 2:
-        raise MetricError(f"protocol released: expected a silhouette [h, w], found "
-                          f"{None if silhouette is None else list(silhouette.shape)}")
+        raise MetricError(
+            f"protocol released: expected a silhouette [h, w], found "
+            f"{None if silhouette is None else list(silhouette.shape)}"
+        )
     return silhouette > RELEASED_SILHOUETTE  # [H, W]
 
 

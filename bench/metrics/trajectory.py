@@ -216,8 +216,9 @@ def _align(traj_est: PoseTrajectory3D, traj_ref: PoseTrajectory3D, align: str) -
     return rot, trans, float(scale)
 
 
-def aligned_positions(est: Trajectory, gt: Trajectory | None, align: str = "se3", max_diff_s: float = MAX_DIFF_S
-                      ) -> np.ndarray:
+def aligned_positions(
+    est: Trajectory, gt: Trajectory | None, align: str = "se3", max_diff_s: float = MAX_DIFF_S
+) -> np.ndarray:
     """[N, 3] every estimated position in the ground-truth frame, aligned as ``ate`` aligns.
 
     The alignment is fitted on the associated poses only and applied to all of them (for plots).
@@ -316,5 +317,14 @@ def rpe(
     return out
 
 
-__all__ = ["MAX_DIFF_S", "Trajectory", "TumAppender", "aligned_positions", "ate", "path_length_ratio", "read_tum",
-           "rpe", "write_tum"]
+__all__ = [
+    "MAX_DIFF_S",
+    "Trajectory",
+    "TumAppender",
+    "aligned_positions",
+    "ate",
+    "path_length_ratio",
+    "read_tum",
+    "rpe",
+    "write_tum",
+]

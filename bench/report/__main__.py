@@ -23,20 +23,31 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("dirs", nargs="*", type=Path, help="sweep or run dirs, searched recursively")
     parser.add_argument("--out", type=Path, help="output dir, e.g. reports/NAME")
-    parser.add_argument("--redraw", type=Path, default=None, metavar="REPORT_DIR",
-                        help="draw the figures of a report folder again from its runs.csv and keyframes.csv "
-                             "(no run dirs needed), in place")  # fmt: skip
-    parser.add_argument("--study", default=None,
-                        help="the runs of conf/study/NAME.yaml (bench.study) and its report options: --out, --paper; "
-                             "a positional KEY=VALUE is an override the study ran with (as after +study=NAME)")
-    parser.add_argument("--paper", action="store_true", default=None,
-                        help="add the paper's figures as '(paper)' rows")
+    parser.add_argument(
+        "--redraw",
+        type=Path,
+        default=None,
+        metavar="REPORT_DIR",
+        help="draw the figures of a report folder again from its runs.csv and keyframes.csv "
+        "(no run dirs needed), in place",
+    )
+    parser.add_argument(
+        "--study",
+        default=None,
+        help="the runs of conf/study/NAME.yaml (bench.study) and its report options: --out, --paper; "
+        "a positional KEY=VALUE is an override the study ran with (as after +study=NAME)",
+    )
+    parser.add_argument("--paper", action="store_true", default=None, help="add the paper's figures as '(paper)' rows")
     parser.add_argument("--baseline", default="none", help="strategy the relative columns compare with")
     parser.add_argument("--format", default="png", help="figure formats, comma-separated: png,pdf,svg (default png)")
     parser.add_argument("--dpi", type=int, default=DPI, help=f"raster resolution of png figures (default {DPI})")
-    parser.add_argument("--labels", type=Path, default=None,
-                        help="YAML of method names and metrics to show (default: the paper's names, all metrics; "
-                             "template: bench/report/labels.yaml)")  # fmt: skip
+    parser.add_argument(
+        "--labels",
+        type=Path,
+        default=None,
+        help="YAML of method names and metrics to show (default: the paper's names, all metrics; "
+        "template: bench/report/labels.yaml)",
+    )
     return parser.parse_args(argv)
 
 
@@ -50,11 +61,14 @@ def study_inputs(args: argparse.Namespace) -> None:
     found = [job.run_dir for job in jobs if job.run_dir.is_dir()]
     if not found:
         first = jobs[0].run_dir if jobs else "-"
-        raise ReportError(f"study '{study.name}': expected run dirs of its {len(jobs)} runs, found none (first: "
-                          f"{first}); run: pocketbench --multirun +study={study.name}")
+        raise ReportError(
+            f"study '{study.name}': expected run dirs of its {len(jobs)} runs, found none (first: "
+            f"{first}); run: pocketbench --multirun +study={study.name}"
+        )
     if len(found) < len(jobs):
-        print(f"warning: study '{study.name}': {len(jobs) - len(found)} of {len(jobs)} run dirs missing",
-              file=sys.stderr)
+        print(
+            f"warning: study '{study.name}': {len(jobs) - len(found)} of {len(jobs)} run dirs missing", file=sys.stderr
+        )
     args.dirs = [*args.dirs, *found]
     args.out = args.out or Path(study.report.get("out", f"reports/{study.name}"))
     args.paper = bool(study.report.get("paper", False)) if args.paper is None else args.paper
@@ -67,8 +81,10 @@ def main(argv: list[str] | None = None) -> int:
         check_figure_options(formats, args.dpi)  # before any table is written
         if args.redraw is not None:
             if args.dirs or args.out:
-                raise ReportError(f"--redraw takes no run dirs and no --out, found {len(args.dirs)} dirs"
-                                  f"{' and --out' if args.out else ''}")  # fmt: skip
+                raise ReportError(
+                    f"--redraw takes no run dirs and no --out, found {len(args.dirs)} dirs"
+                    f"{' and --out' if args.out else ''}"
+                )
             result = redraw(args.redraw, formats, args.dpi)
             for warning in result.warnings:
                 print(f"warning: {warning}", file=sys.stderr)
@@ -78,8 +94,15 @@ def main(argv: list[str] | None = None) -> int:
             study_inputs(args)
         if not args.dirs or args.out is None:
             raise ReportError("expected run dirs and --out (or --study NAME, or --redraw REPORT_DIR)")
-        result = make_report(args.dirs, args.out, paper=bool(args.paper), baseline=args.baseline, formats=formats,
-                             dpi=args.dpi, labels=load_labels(args.labels))  # fmt: skip
+        result = make_report(
+            args.dirs,
+            args.out,
+            paper=bool(args.paper),
+            baseline=args.baseline,
+            formats=formats,
+            dpi=args.dpi,
+            labels=load_labels(args.labels),
+        )
     except BenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

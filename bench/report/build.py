@@ -65,8 +65,10 @@ def load_labels(path: Path | None) -> Labels:
     if metrics is not None:
         bad = [m for m in metrics if m not in SELECTABLE_METRICS] if isinstance(metrics, list) else [metrics]
         if bad or not metrics:
-            raise ReportError(f"labels file '{path}': expected metrics among {', '.join(SELECTABLE_METRICS)}, "
-                              f"found {', '.join(map(str, bad)) or '(none)'}")  # fmt: skip
+            raise ReportError(
+                f"labels file '{path}': expected metrics among {', '.join(SELECTABLE_METRICS)}, "
+                f"found {', '.join(map(str, bad)) or '(none)'}"
+            )
         metrics = tuple(metrics)
     return Labels({str(k): v for k, v in methods.items()}, metrics)
 
@@ -91,7 +93,12 @@ def make_report(
 
 
 def _make_report(
-    run_dirs: list[Path], out: Path, paper: bool, baseline: str, formats: tuple[str, ...], dpi: int,
+    run_dirs: list[Path],
+    out: Path,
+    paper: bool,
+    baseline: str,
+    formats: tuple[str, ...],
+    dpi: int,
     metrics: tuple[str, ...] | None,
 ) -> ReportResult:
     if not baseline:
@@ -133,8 +140,9 @@ def _make_report(
         stacked.to_csv(files[-1], index=False)
         files.append(out / "scale.md")
         files[-1].write_text(scale_markdown(runs, keyframes, stacked, baseline), encoding="utf-8")
-    files += make_plots(runs, out, warnings.append, formats, dpi, keyframes=keyframes, milestones=milestones,
-                        long_drives=long_drives)
+    files += make_plots(
+        runs, out, warnings.append, formats, dpi, keyframes=keyframes, milestones=milestones, long_drives=long_drives
+    )
     return ReportResult(out, runs, tables, files, collection.skipped, warnings)
 
 
@@ -167,8 +175,16 @@ def redraw(report_dir: Path, formats: tuple[str, ...] = ("png",), dpi: int = DPI
     if not keyframes:
         warnings.append(f"no {POOLED_KEYFRAMES_FILE} in '{report_dir}': per-keyframe figures need the run dirs")
     milestones = _stored_run_tables(report_dir / MILESTONES_FILE)
-    files = make_plots(runs, report_dir, warnings.append, formats, dpi, keyframes=keyframes, milestones=milestones,
-                       long_drives=bool(milestones))
+    files = make_plots(
+        runs,
+        report_dir,
+        warnings.append,
+        formats,
+        dpi,
+        keyframes=keyframes,
+        milestones=milestones,
+        long_drives=bool(milestones),
+    )
     return ReportResult(report_dir, runs, [], files, [], warnings)
 
 
@@ -181,8 +197,10 @@ def _stored_run_tables(path: Path) -> dict[str, pd.DataFrame]:
     except (OSError, ValueError) as exc:
         raise ReportError(f"cannot read '{path}': {exc}") from None
     if "path" not in table:
-        raise ReportError(f"expected a path column (the run each row belongs to) in '{path}', found columns: "
-                          f"{', '.join(map(str, table.columns[:8]))}{', ...' if len(table.columns) > 8 else ''}")
+        raise ReportError(
+            f"expected a path column (the run each row belongs to) in '{path}', found columns: "
+            f"{', '.join(map(str, table.columns[:8]))}{', ...' if len(table.columns) > 8 else ''}"
+        )
     _check_numbers(table, path)
     return grouped_run_tables(table)
 
@@ -192,16 +210,22 @@ def _check_numbers(table: pd.DataFrame, path: Path) -> None:
     otherwise fail mid-drawing, after others were written."""
     from bench import schema
 
-    numbers = {f.name for fields in (schema.RUN_FIELDS, schema.METRIC_FIELDS, schema.KEYFRAME_FIELDS,
-                                     schema.MILESTONE_FIELDS) for f in fields if f.kind == "number"}
+    numbers = {
+        f.name
+        for fields in (schema.RUN_FIELDS, schema.METRIC_FIELDS, schema.KEYFRAME_FIELDS, schema.MILESTONE_FIELDS)
+        for f in fields
+        if f.kind == "number"
+    }
     for column in table.columns:
         if column not in numbers or pd.api.types.is_numeric_dtype(table[column]):
             continue
         bad = table[column].notna() & pd.to_numeric(table[column], errors="coerce").isna()
         if bad.any():
             row = int(bad.to_numpy().nonzero()[0][0])
-            raise ReportError(f"expected numbers in column '{column}' of '{path}', found "
-                              f"{table[column].iloc[row]!r} on line {row + 2}")
+            raise ReportError(
+                f"expected numbers in column '{column}' of '{path}', found "
+                f"{table[column].iloc[row]!r} on line {row + 2}"
+            )
 
 
 STATS_COLUMNS: tuple[str, ...] = (
@@ -225,16 +249,25 @@ def seed_statistics(tables: list[Table], baseline: str) -> pd.DataFrame:
                     if cell.kind != "num":
                         continue
                     ci = confidence_interval(cell.values, 0.95)
-                    rows.append({
-                        "dataset": table.dataset, "metric": block.key, "method": row.label,
-                        "strategy": row.variant.strategy, "keep_ratio": row.variant.keep_ratio,
-                        "slam_preset": row.variant.slam_preset, "seq": column, "n_seeds": len(cell.values),
-                        "seeds": " ".join(str(s) for s in cell.seeds), "mean": cell.mean,
-                        "std": statistics.stdev(cell.values) if len(cell.values) > 1 else None,
-                        "ci95_low": None if ci is None else ci[0], "ci95_high": None if ci is None else ci[1],
-                        "baseline": baseline if row.variant.strategy != baseline else None,
-                        "p_welch": cell.p_value,
-                        "within_noise": cell.noise if cell.p_value is not None else None,
-                        "eval_protocol": table.protocol,
-                    })  # fmt: skip
+                    rows.append(
+                        {
+                            "dataset": table.dataset,
+                            "metric": block.key,
+                            "method": row.label,
+                            "strategy": row.variant.strategy,
+                            "keep_ratio": row.variant.keep_ratio,
+                            "slam_preset": row.variant.slam_preset,
+                            "seq": column,
+                            "n_seeds": len(cell.values),
+                            "seeds": " ".join(str(s) for s in cell.seeds),
+                            "mean": cell.mean,
+                            "std": statistics.stdev(cell.values) if len(cell.values) > 1 else None,
+                            "ci95_low": None if ci is None else ci[0],
+                            "ci95_high": None if ci is None else ci[1],
+                            "baseline": baseline if row.variant.strategy != baseline else None,
+                            "p_welch": cell.p_value,
+                            "within_noise": cell.noise if cell.p_value is not None else None,
+                            "eval_protocol": table.protocol,
+                        }
+                    )
     return pd.DataFrame(rows, columns=list(STATS_COLUMNS))

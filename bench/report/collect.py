@@ -93,6 +93,11 @@ def _flat_metrics(metrics: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _dict_or_empty(value: Any) -> dict[str, Any]:
+    """``value`` if a JSON object, else ``{}`` (a block missing or null in an older metrics.json)."""
+    return value if isinstance(value, dict) else {}
+
+
 def read_run(run_dir: Path) -> dict[str, Any]:
     """One flat row from ``run_dir/metrics.json``; ``ReportError`` says what is malformed."""
     path = Path(run_dir) / schema.METRICS_FILE
@@ -150,10 +155,10 @@ def read_run(run_dir: Path) -> dict[str, Any]:
     for key, value in sorted(values.items()):
         if key not in row:  # metrics.keep_ratio repeats run.keep_ratio (bench.schema): the run key stands
             row[key] = value
-    provenance = data.get("provenance") if isinstance(data.get("provenance"), dict) else {}
+    provenance = _dict_or_empty(data.get("provenance"))
     for key in ("git_commit", "git_dirty", "device", "numba_cpu", "torch_cpu_capability"):
         row[key] = provenance.get(key)
-    versions = provenance.get("versions") if isinstance(provenance.get("versions"), dict) else {}
+    versions = _dict_or_empty(provenance.get("versions"))
     for name, version in sorted(versions.items()):
         row[f"version_{name}"] = version
     row.update(read_settings(run_dir, provenance.get("device")))
@@ -216,8 +221,9 @@ def is_missing(value: Any) -> bool:
     return isinstance(value, float) and math.isnan(value)
 
 
-def read_run_table(path: Path, required: Iterable[str | tuple[str, ...]], warn: Callable[[str], None],
-                   where: str = "") -> pd.DataFrame | None:
+def read_run_table(
+    path: Path, required: Iterable[str | tuple[str, ...]], warn: Callable[[str], None], where: str = ""
+) -> pd.DataFrame | None:
     """One of a run's csv tables (keyframes.csv, milestones.csv), or None with a warning when it is
     not a table holding ``required`` (a tuple there: any one of its columns will do). A missing file
     is None without a warning: the run did not write that table."""
@@ -231,8 +237,11 @@ def read_run_table(path: Path, required: Iterable[str | tuple[str, ...]], warn: 
         warn(f"skipped {path}{where}: expected a csv table, found {exc}")
         return None
     have = set(rows.columns)
-    missing = [c if isinstance(c, str) else "/".join(c) for c in required
-               if not (have & ({c} if isinstance(c, str) else set(c)))]
+    missing = [
+        c if isinstance(c, str) else "/".join(c)
+        for c in required
+        if not (have & ({c} if isinstance(c, str) else set(c)))
+    ]
     if missing:
         warn(f"skipped {path}{where}: expected columns {', '.join(missing)}, found {list(rows.columns)}")
         return None

@@ -19,8 +19,13 @@ METHOD_NAMES: dict[str, str] = {
 }
 STRATEGY_ORDER: tuple[str, ...] = tuple(METHOD_NAMES)
 
-DATASET_NAMES: dict[str, str] = {"kitti": "KITTI", "euroc": "EuRoC", "tum": "TUM RGB-D", "sevenscenes": "7-Scenes",
-                                 "synthetic": "Synthetic"}
+DATASET_NAMES: dict[str, str] = {
+    "kitti": "KITTI",
+    "euroc": "EuRoC",
+    "tum": "TUM RGB-D",
+    "sevenscenes": "7-Scenes",
+    "synthetic": "Synthetic",
+}
 
 
 # The names in use: the paper's by default, replaced per report by ``--labels`` (``use_labels``).

@@ -49,8 +49,12 @@ def run_slopes(keyframes: pd.DataFrame, peak_col: str | None) -> dict[str, float
         return None
     d = kf["distance_m"].to_numpy(float)
     out = {"distance_m": float(d.max())}
-    parts = (("gaussians", "n_gaussians"), ("peak_mib", peak_col), ("state_mib", "mem_state_mib"),
-             ("keyframes_mib", "mem_keyframes_mib"))  # the last two: what pruning can bound, and what it cannot
+    parts = (
+        ("gaussians", "n_gaussians"),
+        ("peak_mib", peak_col),
+        ("state_mib", "mem_state_mib"),
+        ("keyframes_mib", "mem_keyframes_mib"),
+    )  # the last two: what pruning can bound, and what it cannot
     for name, col in parts:
         if col is None or col not in kf.columns or kf[col].isna().any():
             out[f"{name}_per_100m"] = out[f"{name}_at_0m"] = float("nan")
@@ -91,16 +95,21 @@ def _reference_length(dataset: str, seq: str, lengths: pd.DataFrame) -> tuple[st
 
 def _paper_memory_gb(table: pd.DataFrame, strategy: str, seq: str) -> float | None:
     """The paper's KITTI peak memory (GB) of the method behind ``strategy`` on ``seq``; None if it has none."""
-    rows = table[(table["table"] == "performance") & (table["dataset"] == "kitti") & (table["metric"] == "Memory_GB")
-                 & (table["sequence"] == seq)]  # fmt: skip
+    rows = table[
+        (table["table"] == "performance")
+        & (table["dataset"] == "kitti")
+        & (table["metric"] == "Memory_GB")
+        & (table["sequence"] == seq)
+    ]
     for method, value in zip(rows["method"], rows["value"], strict=True):
         if PAPER_STRATEGY.get(method) == strategy and value.strip() != LOST:
             return float(value)
     return None
 
 
-def scale_markdown(runs: pd.DataFrame, keyframes: dict[str, pd.DataFrame], milestones: pd.DataFrame,
-                   baseline: str = "none") -> str:
+def scale_markdown(
+    runs: pd.DataFrame, keyframes: dict[str, pd.DataFrame], milestones: pd.DataFrame, baseline: str = "none"
+) -> str:
     """The scale section: growth per 100 m with the extrapolation, accuracy at the milestones, the answer."""
     lengths, paper_table = sequence_lengths(), load_paper_tables()
     done = runs[runs["status"].isin(["ok", "lost"])]
@@ -126,22 +135,33 @@ def _protocol_line(one: pd.DataFrame) -> str:
     found = sorted({p for p in run_protocols(one) if not is_missing(p)}) or ["full"]
     if len(found) == 1:
         return protocol_note(found[0]) + " The paper's peak is memory, which no protocol changes."
-    return (f"Image metrics scored with several eval.protocol values ({', '.join(found)}): the PSNR cells below "
-            "pool them; report them apart to compare.")
+    return (
+        f"Image metrics scored with several eval.protocol values ({', '.join(found)}): the PSNR cells below "
+        "pool them; report them apart to compare."
+    )
 
 
 def _variant_rows(one: pd.DataFrame, found: list[Variant]) -> list[tuple[Variant, pd.DataFrame]]:
     return [(v, vr) for v in found if len(vr := variant_runs(one, v))]
 
 
-def _growth_table(one: pd.DataFrame, found: list[Variant], keyframes: dict[str, pd.DataFrame], ref_name: str,
-                  ref_m: float, baseline: str, paper_table: pd.DataFrame) -> list[str]:
+def _growth_table(
+    one: pd.DataFrame,
+    found: list[Variant],
+    keyframes: dict[str, pd.DataFrame],
+    ref_name: str,
+    ref_m: float,
+    baseline: str,
+    paper_table: pd.DataFrame,
+) -> list[str]:
     lines = [
         f"Growth: least-squares lines through every keyframe after the first (mean ± std over seeds); "
         f"'at {ref_name}' extends each line to that sequence's whole length ({ref_m:.0f} m), a straight-line "
-        "extrapolation, beside the paper's peak (GB on its GPU).", "",
+        "extrapolation, beside the paper's peak (GB on its GPU).",
+        "",
         "Of the peak's slope, 'state' is the Gaussian state (what pruning acts on) and 'keyframes' the keyframe "
-        "store (every keyframe's colour, depth and pose, which no strategy prunes); keyframes.csv's memory parts.", "",
+        "store (every keyframe's colour, depth and pose, which no strategy prunes); keyframes.csv's memory parts.",
+        "",
         "| method | seeds | driven m | Gaussians / 100 m | peak MiB / 100 m | state MiB / 100 m | "
         f"keyframes MiB / 100 m | slope vs baseline | Gaussians at {ref_name} | peak MiB at {ref_name} | paper GB |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
@@ -162,8 +182,9 @@ def _growth_table(one: pd.DataFrame, found: list[Variant], keyframes: dict[str, 
         if not got:
             lines.append(f"| {variant.label} | 0 |" + " - |" * 9)
             continue
-        base = next((s for v, s in slopes.items()
-                     if v.strategy == baseline and v.slam_preset == variant.slam_preset), [])
+        base = next(
+            (s for v, s in slopes.items() if v.strategy == baseline and v.slam_preset == variant.slam_preset), []
+        )
         base_peak, _ = _mean_std([s["peak_mib_per_100m"] for s in base])
         g = _mean_std([s["gaussians_per_100m"] for s in got])
         p = _mean_std([s["peak_mib_per_100m"] for s in got])
@@ -202,10 +223,13 @@ def _milestone_frames(one: pd.DataFrame, by_path: dict[str, pd.DataFrame]) -> li
 
 def _accuracy_table(one: pd.DataFrame, found: list[Variant], by_path: dict[str, pd.DataFrame]) -> list[str]:
     frames = _milestone_frames(one, by_path)
-    lines = ["Accuracy at the milestones: ATE m / PSNR dB of the drive so far, mean ± std over the ok seeds "
-             "(lost seeds counted in the last column).", "",
-             "| method | " + " | ".join(f"{n} frames" for n in frames) + " | lost |",
-             "|---|" + "---|" * len(frames) + "---|"]  # fmt: skip
+    lines = [
+        "Accuracy at the milestones: ATE m / PSNR dB of the drive so far, mean ± std over the ok seeds "
+        "(lost seeds counted in the last column).",
+        "",
+        "| method | " + " | ".join(f"{n} frames" for n in frames) + " | lost |",
+        "|---|" + "---|" * len(frames) + "---|",
+    ]
     for variant, vr in _variant_rows(one, found):
         cells = []
         for n in frames:
@@ -240,11 +264,15 @@ def _answer(one: pd.DataFrame, found: list[Variant], by_path: dict[str, pd.DataF
     if not frames or not bases:
         return ["No baseline runs at the milestones: no answer.", ""]
     last = frames[-1]
-    lines = [f"The answer at {last} frames: within noise = Welch p >= 0.05 against {method_name(baseline)} of the "
-             "same preset on both ATE and PSNR; 'better' = outside the noise on the good side of one (lower ATE or "
-             "higher PSNR) and within it on the other, so accuracy is kept too; 'no' = worse beyond the noise on "
-             "either; peak = the headline peak over the drive.", "",
-             "| method | seeds ok | ATE m | PSNR dB | peak MiB | against baseline |", "|---|---|---|---|---|---|"]
+    lines = [
+        f"The answer at {last} frames: within noise = Welch p >= 0.05 against {method_name(baseline)} of the "
+        "same preset on both ATE and PSNR; 'better' = outside the noise on the good side of one (lower ATE or "
+        "higher PSNR) and within it on the other, so accuracy is kept too; 'no' = worse beyond the noise on "
+        "either; peak = the headline peak over the drive.",
+        "",
+        "| method | seeds ok | ATE m | PSNR dB | peak MiB | against baseline |",
+        "|---|---|---|---|---|---|",
+    ]
     best: dict[str, dict[str, tuple[float, str]]] = {}  # preset -> strategy -> (smallest peak keeping accuracy, label)
     for variant, vr in rows:
         ate, psnr = _at(by_path, vr, last, "ate_rmse_m"), _at(by_path, vr, last, "psnr_db")
@@ -263,12 +291,20 @@ def _answer(one: pd.DataFrame, found: list[Variant], by_path: dict[str, pd.DataF
                 mine[variant.strategy] = cand
         else:
             mine.setdefault(variant.strategy, (float("nan"), ""))
-        lines.append(f"| {variant.label} | {len(ate)} | {_fmt(*_mean_std(ate), 3)} | {_fmt(*_mean_std(psnr), 2)} | "
-                     f"{_fmt(*_mean_std(peak), 1)} | {verdict} |")
-    lines += ["", f"Smallest peak at which each strategy keeps its preset's baseline accuracy (within noise, or "
-              f"better) at {last} frames:", ""]
+        lines.append(
+            f"| {variant.label} | {len(ate)} | {_fmt(*_mean_std(ate), 3)} | {_fmt(*_mean_std(psnr), 2)} | "
+            f"{_fmt(*_mean_std(peak), 1)} | {verdict} |"
+        )
+    lines += [
+        "",
+        f"Smallest peak at which each strategy keeps its preset's baseline accuracy (within noise, or "
+        f"better) at {last} frames:",
+        "",
+    ]
     for preset, per in best.items():
-        cells = [f"{method_name(s)}: {peak:.1f} MiB ({label})" if np.isfinite(peak) else f"{method_name(s)}: none"
-                 for s, (peak, label) in per.items()]
+        cells = [
+            f"{method_name(s)}: {peak:.1f} MiB ({label})" if np.isfinite(peak) else f"{method_name(s)}: none"
+            for s, (peak, label) in per.items()
+        ]
         lines.append(f"- `slam={preset}`: " + "; ".join(cells) + ".")
     return lines + [""]

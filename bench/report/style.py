@@ -38,8 +38,12 @@ COLOURS: dict[str, str] = {
 }
 EXTRA_COLOURS: tuple[str, ...] = ("#56B4E9", "#F0E442", "#8C564B", "#7F7F7F")
 RATIO_STYLES: tuple[tuple[str | tuple, str], ...] = (
-    ("-", "o"), ("--", "s"), (":", "^"), ("-.", "D"), ((0, (5, 1)), "v"),
-)  # fmt: skip
+    ("-", "o"),
+    ("--", "s"),
+    (":", "^"),
+    ("-.", "D"),
+    ((0, (5, 1)), "v"),
+)
 FONT = {"axes.titlesize": 10, "axes.labelsize": 9, "xtick.labelsize": 8, "ytick.labelsize": 8, "legend.fontsize": 8}
 
 
@@ -133,8 +137,17 @@ def apply_fonts(ax: Axes) -> None:
     ax.grid(alpha=0.3, lw=0.6)
 
 
-def band(ax: Axes, x: np.ndarray, mean: np.ndarray, std: np.ndarray | None, colour: str, ls="-", marker="o",
-         label: str | None = None, markevery: int | None = None) -> Line2D:  # fmt: skip
+def band(
+    ax: Axes,
+    x: np.ndarray,
+    mean: np.ndarray,
+    std: np.ndarray | None,
+    colour: str,
+    ls="-",
+    marker="o",
+    label: str | None = None,
+    markevery: int | None = None,
+) -> Line2D:
     """The seeds' mean as a line, and mean ± sample std as a shaded band (where there are >= 2 seeds)."""
     (line,) = ax.plot(x, mean, ls=ls, marker=marker, ms=3, lw=1.4, color=colour, label=label, markevery=markevery)
     if std is not None and np.isfinite(std).any():
@@ -152,8 +165,14 @@ def legend_outside(fig: Figure, handles: list, title: str | None = None) -> None
     seen: dict[str, object] = {}
     for h in handles:
         seen.setdefault(h.get_label(), h)
-    fig.legend(handles=list(seen.values()), loc="outside right upper", fontsize=FONT["legend.fontsize"],
-               title=title, title_fontsize=FONT["legend.fontsize"], frameon=False)  # fmt: skip
+    fig.legend(
+        handles=list(seen.values()),
+        loc="outside right upper",
+        fontsize=FONT["legend.fontsize"],
+        title=title,
+        title_fontsize=FONT["legend.fontsize"],
+        frameon=False,
+    )
 
 
 def fig_title(fig: Figure, text: str) -> None:

@@ -47,6 +47,12 @@ class Cell:
 EMPTY = Cell("empty")
 
 
+def _num(cell: Cell) -> float:
+    """The mean of a "num" cell: every one has a mean (the other kinds are marks without a number)."""
+    assert cell.mean is not None, cell
+    return cell.mean
+
+
 @dataclass
 class Row:
     label: str
@@ -153,6 +159,7 @@ def variants(runs: pd.DataFrame) -> list[Variant]:
         ratios[strategy, preset] = ratios.get((strategy, preset), 0) + 1
     several_presets = len({p for _, _, p in triples}) > 1
     out = []
+
     def order(p: tuple[str, float | None, str]) -> tuple:
         return p[2] != "default", p[2], strategy_rank(p[0]), -1.0 if p[1] is None else p[1]
 
@@ -185,16 +192,29 @@ def seed_cell(runs: pd.DataFrame, metric: str) -> Cell:
     ok = runs[status == "ok"]
     if ok.empty:
         return Cell("lost") if n_lost else Cell("failed") if n_failed else EMPTY
-    pairs = [(float(v), None if is_missing(s) else int(s)) for v, s in zip(ok[metric], ok["seed"], strict=True)
-             if not is_missing(v)] if metric in ok else []  # fmt: skip
+    pairs = (
+        [
+            (float(v), None if is_missing(s) else int(s))
+            for v, s in zip(ok[metric], ok["seed"], strict=True)
+            if not is_missing(v)
+        ]
+        if metric in ok
+        else []
+    )
     if not pairs:
         return Cell("na")
     values = [v for v, _ in pairs]
     total = len(runs)
     notes = [f"{n}/{total} {what}" for n, what in ((n_lost, "lost"), (n_failed, "failed")) if n]
     std = statistics.stdev(values) if len(values) > 1 else None
-    return Cell("num", mean=statistics.fmean(values), std=std, note=", ".join(notes), values=tuple(values),
-                seeds=tuple(s for _, s in pairs))  # fmt: skip
+    return Cell(
+        "num",
+        mean=statistics.fmean(values),
+        std=std,
+        note=", ".join(notes),
+        values=tuple(values),
+        seeds=tuple(s for _, s in pairs),
+    )
 
 
 def average_cell(cells: list[Cell]) -> Cell:
@@ -206,8 +226,16 @@ def average_cell(cells: list[Cell]) -> Cell:
         note = f"{len(numbers)}/{len(cells)} seqs" if partial else ""
         seeds, values = ((), ()) if partial else _per_seed_averages(numbers)
         # printed without ± as in the paper; the per-seed averages feed the noise test and stats.csv
-        return Cell("num", mean=statistics.fmean(c.mean for c in numbers), decimals=decimals,
-                    unit=numbers[0].unit, note=note, partial=partial, values=values, seeds=seeds)  # fmt: skip
+        return Cell(
+            "num",
+            mean=statistics.fmean(_num(c) for c in numbers),
+            decimals=decimals,
+            unit=numbers[0].unit,
+            note=note,
+            partial=partial,
+            values=values,
+            seeds=seeds,
+        )
     for kind in ("lost", "failed", "na"):
         if any(c.kind == kind for c in cells):
             return Cell(kind)
@@ -298,7 +326,7 @@ def mark_best(block: Block) -> None:
             for row in block.rows
             if not row.paper and row.cells[col].kind == "num" and not row.cells[col].partial
         ]
-        shown = [round(c.mean, c.decimals if c.decimals is not None else block.decimals) for _, c in candidates]
+        shown = [round(_num(c), c.decimals if c.decimals is not None else block.decimals) for _, c in candidates]
         if len(set(shown)) < 2:
             continue
         best = min(shown) if block.better == "lower" else max(shown)
@@ -356,8 +384,16 @@ def mark_noise(block: Block, measured: dict[Variant, list[Cell]], baseline: Base
 
 def seed_note(blocks: list[Block]) -> str:
     """What the spread in the table rests on: how many seeds per cell, and the noise marker."""
-    counts = sorted({len(c.values) for b in blocks for r in b.rows if not r.paper for c in r.cells[:-1]
-                     if c.kind == "num" and c.values})  # fmt: skip
+    counts = sorted(
+        {
+            len(c.values)
+            for b in blocks
+            for r in b.rows
+            if not r.paper
+            for c in r.cells[:-1]
+            if c.kind == "num" and c.values
+        }
+    )
     if not counts or counts[-1] < 2:
         return "1 seed: no noise estimate; a difference from the baseline may be seed noise."
     n = str(counts[0]) if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
@@ -376,8 +412,8 @@ def relative_cells(cells: list[Cell], base: list[Cell], style: Style) -> list[Ce
     pairs = []
     for cell, ref in zip(cells[:-1], base[:-1], strict=True):
         if cell.kind == "num" and ref.kind == "num" and ref.mean:
-            pairs.append((cell.mean, ref.mean))
-            out.append(replace(_ratio_cell(cell.mean / ref.mean, style), p_value=cell.p_value, noise=cell.noise))
+            pairs.append((_num(cell), ref.mean))
+            out.append(replace(_ratio_cell(_num(cell) / ref.mean, style), p_value=cell.p_value, noise=cell.noise))
         elif "lost" in (cell.kind, ref.kind):
             out.append(Cell("lost"))
         elif "failed" in (cell.kind, ref.kind):
@@ -448,9 +484,9 @@ class Baseline:
         same = self.by_preset.get((variant.slam_preset, variant.keep_ratio))
         if same is not None:
             return same
-        same = [v for (p, _), v in self.by_preset.items() if p == variant.slam_preset]
-        if same:
-            return ([v for v in same if v.keep_ratio in (None, 1.0)] or same)[0]
+        in_preset = [v for (p, _), v in self.by_preset.items() if p == variant.slam_preset]
+        if in_preset:
+            return ([v for v in in_preset if v.keep_ratio in (None, 1.0)] or in_preset)[0]
         return self.by_keep.get(variant.keep_ratio, self.default)
 
 
@@ -460,8 +496,11 @@ def pick_baseline(found: list[Variant], baseline: str) -> tuple[Baseline | None,
     if not candidates:
         return None, None
     chosen = ([v for v in candidates if v.keep_ratio in (None, 1.0)] or candidates)[0]
-    result = Baseline(chosen, {v.keep_ratio: v for v in candidates if v.slam_preset == chosen.slam_preset},
-                      {(v.slam_preset, v.keep_ratio): v for v in candidates})
+    result = Baseline(
+        chosen,
+        {v.keep_ratio: v for v in candidates if v.slam_preset == chosen.slam_preset},
+        {(v.slam_preset, v.keep_ratio): v for v in candidates},
+    )
     if len({v.keep_ratio for v in candidates}) == 1:
         return result, None
     return result, (
@@ -477,7 +516,10 @@ def protocol_note(protocol: str) -> str:
 
 
 def accuracy_table(
-    runs: pd.DataFrame, dataset: str, paper: pd.DataFrame | None = None, baseline: str = "none",
+    runs: pd.DataFrame,
+    dataset: str,
+    paper: pd.DataFrame | None = None,
+    baseline: str = "none",
     protocol: str = DEFAULT_PROTOCOL,
 ) -> Table:
     """Table I/II layout: ATE, PSNR, SSIM, MS-SSIM, LPIPS blocks of method rows; sequences plus Avg.
@@ -496,16 +538,20 @@ def accuracy_table(
     if paper is not None and _has_overlap(paper, "accuracy", dataset, seqs):
         if is_masked(protocol):
             prows = _paper_rows(paper, "accuracy", dataset, seqs, [m.key for m in ACCURACY_METRICS])
-            notes.append(f"(paper) rows: the figures printed in the Pocket-SLAM paper, not bold-ranked, beside runs "
-                         f"scored with eval.protocol={protocol}; which of the two masked protocols (splatam, "
-                         "released) produced the paper's table is not known. The paper's SSIM is MS-SSIM (its base "
-                         "system's evaluation) and stands in the MS-SSIM block.")
+            notes.append(
+                f"(paper) rows: the figures printed in the Pocket-SLAM paper, not bold-ranked, beside runs "
+                f"scored with eval.protocol={protocol}; which of the two masked protocols (splatam, "
+                "released) produced the paper's table is not known. The paper's SSIM is MS-SSIM (its base "
+                "system's evaluation) and stands in the MS-SSIM block."
+            )
             if prows.recomputed_avg:
                 notes.append("Paper Avg recomputed over the sequences shown.")
         else:
-            notes.append(f"(paper) rows left out: these runs were scored with eval.protocol={protocol}, the paper "
-                         "with masked images (pixels without depth count as perfect); rerun with "
-                         "eval.protocol=splatam or released to set them beside it.")
+            notes.append(
+                f"(paper) rows left out: these runs were scored with eval.protocol={protocol}, the paper "
+                "with masked images (pixels without depth count as perfect); rerun with "
+                "eval.protocol=splatam or released to set them beside it."
+            )
     base, _ = pick_baseline(found, baseline)
     blocks = []
     has_ms_ssim = "ms_ssim" in runs and runs["ms_ssim"].notna().any()
@@ -521,7 +567,10 @@ def accuracy_table(
 
 
 def performance_table(
-    runs: pd.DataFrame, dataset: str, paper: pd.DataFrame | None = None, baseline: str = "none",
+    runs: pd.DataFrame,
+    dataset: str,
+    paper: pd.DataFrame | None = None,
+    baseline: str = "none",
     protocol: str = DEFAULT_PROTOCOL,
 ) -> tuple[Table, list[str]]:
     """Table III/IV layout: peak memory and FPS blocks, each followed by its change vs the baseline.
@@ -589,8 +638,7 @@ def run_protocols(runs: pd.DataFrame) -> pd.Series:
     which (it joins every protocol's table). A runs.csv from before protocols has no column: ``full``."""
     if "eval_protocol" not in runs:
         return pd.Series(DEFAULT_PROTOCOL, index=runs.index, dtype=object)
-    return pd.Series([None if is_missing(p) else str(p) for p in runs["eval_protocol"]], index=runs.index,
-                     dtype=object)
+    return pd.Series([None if is_missing(p) else str(p) for p in runs["eval_protocol"]], index=runs.index, dtype=object)
 
 
 def _protocol_rank(protocol: str) -> tuple[int, str]:
@@ -616,20 +664,29 @@ def marks_note(blocks: list[Block]) -> str:
     """The legend of the marks and conventions that occur in these blocks, and only those."""
     cells = [c for b in blocks for r in b.rows if not r.paper for c in r.cells]
     kinds = {c.kind for c in cells}
-    parts = [text for kind, text in (("lost", "'-': tracking lost"), ("na", "'n/a': metric unavailable"),
-                                     ("failed", "'failed': run crashed"), ("empty", "empty: not run"))
-             if kind in kinds]  # fmt: skip
+    parts = [
+        text
+        for kind, text in (
+            ("lost", "'-': tracking lost"),
+            ("na", "'n/a': metric unavailable"),
+            ("failed", "'failed': run crashed"),
+            ("empty", "empty: not run"),
+        )
+        if kind in kinds
+    ]
     sentences = ["; ".join(parts) + "." if parts else ""]
     if any(c.std is not None for c in cells):
         sentences.append("Several seeds: mean ± sample std (n-1).")
     if any(c.note and ("lost" in c.note or "failed" in c.note) for c in cells):
         sentences.append("'k/n lost' counts seeds left out of the mean.")
     if any(c.partial for c in cells):
-        sentences.append("Avg: over the sequences with a value (the paper's convention), 'k/n seqs' where not all "
-                         "have one.")  # fmt: skip
+        sentences.append(
+            "Avg: over the sequences with a value (the paper's convention), 'k/n seqs' where not all have one."
+        )
     if any(c.bold for c in cells):
-        sentences.append("Bold: best measured value" + (" (full averages only)." if any(c.partial for c in cells)
-                                                        else "."))  # fmt: skip
+        sentences.append(
+            "Bold: best measured value" + (" (full averages only)." if any(c.partial for c in cells) else ".")
+        )
     return " ".join(s for s in sentences if s)
 
 
@@ -640,14 +697,20 @@ def select_metrics(table: Table, metrics: tuple[str, ...] | None) -> Table | Non
     if not blocks:
         return None
     shown = {BLOCK_METRIC.get(b.title, b.title) for b in blocks}
-    notes = [n for n in table.notes if n != MARKS_NOTE
-             and all(not n.startswith(prefix) or shown & set(keys) for prefix, keys in _NOTE_METRICS.items())]
+    notes = [
+        n
+        for n in table.notes
+        if n != MARKS_NOTE
+        and all(not n.startswith(prefix) or shown & set(keys) for prefix, keys in _NOTE_METRICS.items())
+    ]
     marks = marks_note(blocks)
     return replace(table, blocks=blocks, notes=[marks, *notes] if marks else notes)
 
 
 def build_tables(
-    runs: pd.DataFrame, paper: pd.DataFrame | None = None, baseline: str = "none",
+    runs: pd.DataFrame,
+    paper: pd.DataFrame | None = None,
+    baseline: str = "none",
     metrics: tuple[str, ...] | None = None,
 ) -> tuple[list[Table], list[str]]:
     """Accuracy and performance tables per dataset from finished runs (``running``/``interrupted`` left out).
@@ -662,11 +725,14 @@ def build_tables(
     protocols = run_protocols(done)
     for dataset in sorted(set(done["dataset"])):
         in_dataset = done["dataset"] == dataset
-        found = sorted({p for p in protocols[in_dataset] if not is_missing(p)} or {DEFAULT_PROTOCOL},
-                       key=_protocol_rank)
+        found = sorted(
+            {p for p in protocols[in_dataset] if not is_missing(p)} or {DEFAULT_PROTOCOL}, key=_protocol_rank
+        )
         if len(found) > 1:
-            warnings.append(f"{dataset}: runs scored with several eval.protocol values ({', '.join(found)}): "
-                            "one table per protocol; figures pool them")
+            warnings.append(
+                f"{dataset}: runs scored with several eval.protocol values ({', '.join(found)}): "
+                "one table per protocol; figures pool them"
+            )
         for protocol in found:
             ds = done[in_dataset & ((protocols == protocol) | protocols.isna())]
             perf, warns = performance_table(ds, dataset, paper, baseline, protocol)

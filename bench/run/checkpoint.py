@@ -26,7 +26,7 @@ import random
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -117,7 +117,7 @@ def find(out: Path, key: dict[str, Any], rows: dict[str, int]) -> tuple[dict | N
     (``traj``, ``keyframes``), which must hold at least what the checkpoint counted. Tensors load
     on the CPU, where torch keeps Adam's step counts and generator states; the run moves the rest.
     """
-    reasons = []
+    reasons: list[str] = []
     for name in FILES:
         path = out / name
         if not path.exists():
@@ -159,11 +159,15 @@ def _load(path: Path, key: dict[str, Any], rows: dict[str, int]) -> tuple[dict |
 
 def global_rng_state() -> dict[str, Any]:
     """torch's, numpy's legacy and Python's global generators (and CUDA's where present), as plain values."""
-    name, keys, pos, has_gauss, cached = np.random.get_state()
+    # numpy's stub picks the dict overload for no argument; the call returns the legacy tuple
+    legacy = cast(tuple[str, np.ndarray, int, int, float], np.random.get_state())
+    name, keys, pos, has_gauss, cached = legacy
     version, internal, gauss = random.getstate()
-    state = {"torch": torch.get_rng_state(), "numpy": [name, torch.from_numpy(keys.astype(np.int64)), pos, has_gauss,
-                                                        cached],
-             "python": [version, torch.tensor(internal, dtype=torch.int64), gauss]}  # fmt: skip
+    state = {
+        "torch": torch.get_rng_state(),
+        "numpy": [name, torch.from_numpy(keys.astype(np.int64)), pos, has_gauss, cached],
+        "python": [version, torch.tensor(internal, dtype=torch.int64), gauss],
+    }
     if torch.cuda.is_available() and torch.cuda.is_initialized():
         state["cuda"] = torch.cuda.get_rng_state_all()
     return state

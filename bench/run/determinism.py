@@ -85,8 +85,12 @@ def repeatable(seed: int, threads: int | None, mode: str, device: torch.device) 
     threads = check_threads(threads)
     if seed < 0:
         raise ConfigError(f"seed must be a non-negative integer; found {seed}")
-    saved = (torch.get_num_threads(), torch.are_deterministic_algorithms_enabled(),
-             torch.is_deterministic_algorithms_warn_only_enabled(), cv2.getNumThreads())  # fmt: skip
+    saved = (
+        torch.get_num_threads(),
+        torch.are_deterministic_algorithms_enabled(),
+        torch.is_deterministic_algorithms_warn_only_enabled(),
+        cv2.getNumThreads(),
+    )
     saved_cudnn = (torch.backends.cudnn.deterministic, torch.backends.cudnn.benchmark)
     try:
         if threads is not None:

@@ -113,14 +113,20 @@ def evaluate(
     from bench.metrics.trajectory import Trajectory, ate, path_length_ratio, rpe, write_tum
 
     ev = cfg.eval
-    res: dict[str, Any] = {"ate_rmse_m": None, "psnr_db": None, "ssim": None, "ms_ssim": None, "lpips": None,
-                           "eval_protocol": ev.protocol}
+    res: dict[str, Any] = {
+        "ate_rmse_m": None,
+        "psnr_db": None,
+        "ssim": None,
+        "ms_ssim": None,
+        "lpips": None,
+        "eval_protocol": ev.protocol,
+    }
     if not est_c2w:
         return res
     ts = np.asarray(drive.timestamps_s)
     est = Trajectory.from_c2w(ts, torch.stack(est_c2w).numpy())
     if all(g is not None for g in drive.gt_c2w) and len(est_c2w) >= 3:
-        gt_world = torch.stack([g.double() for g in drive.gt_c2w])
+        gt_world = torch.stack([g.double() for g in drive.gt_c2w if g is not None])  # all are, checked above
         gt_world = inverse(gt_world[0]).expand_as(gt_world) @ gt_world  # first camera = origin, like the estimate
         gt = Trajectory.from_c2w(ts, gt_world.numpy())
         if write_gt:
@@ -157,8 +163,12 @@ def evaluate(
         if ev.protocol == "splatam":
             res["eval_depth_range_m"] = [near_m, far_m]
     if min(parts.seq.height, parts.seq.width) < MS_SSIM_MIN_PX:
-        log.info("ms_ssim: n/a: %dx%d px images are smaller than the %d px MS-SSIM needs on a side",
-                 parts.seq.height, parts.seq.width, MS_SSIM_MIN_PX)
+        log.info(
+            "ms_ssim: n/a: %dx%d px images are smaller than the %d px MS-SSIM needs on a side",
+            parts.seq.height,
+            parts.seq.width,
+            MS_SSIM_MIN_PX,
+        )
     res["eval_frames"] = len(idx)
     return res
 

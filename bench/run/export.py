@@ -92,7 +92,8 @@ def save_snapshot(run_dir: Path, keyframe: int, gaussians) -> Path:
     """``maps/kf_NNN.npz``: the map after keyframe ``keyframe``'s prune, for ``python -m bench.export``."""
     path = Path(run_dir) / SNAPSHOT_DIR / f"kf_{keyframe:03d}.npz"
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(path, **map_arrays(gaussians))
+    # mypy matches **arrays against savez's allow_pickle: bool as well (numpy >= 2.1 stubs); the keys are PARAMS
+    np.savez(path, **map_arrays(gaussians))  # type: ignore[arg-type]
     return path
 
 
@@ -116,8 +117,10 @@ def export_keyframe(run_dir: Path, keyframe: int, out: Path | None = None) -> Pa
     if not path.is_file():
         have = snapshot_keyframes(run_dir)
         found = f"snapshots of keyframes {', '.join(map(str, have))}" if have else "no snapshots"
-        raise ConfigError(f"expected a snapshot of keyframe {keyframe} in '{run_dir / SNAPSHOT_DIR}' "
-                          f"(made by runs with save_maps=every_keyframe), found {found}")  # fmt: skip
+        raise ConfigError(
+            f"expected a snapshot of keyframe {keyframe} in '{run_dir / SNAPSHOT_DIR}' "
+            f"(made by runs with save_maps=every_keyframe), found {found}"
+        )
     target = Path(out) if out is not None else run_dir / f"map_kf{keyframe:03d}.ply"
     if target.is_dir():
         raise ConfigError(f"--out: expected a PLY file path, found the directory '{target}'")
@@ -148,9 +151,11 @@ def read_ply(path: Path) -> dict[str, np.ndarray]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = ArgumentParser(prog="python -m bench.export",
-                                     description="Write a keyframe's map snapshot (save_maps=every_keyframe) as a "
-                                                 "3DGS PLY; every run already leaves its final map as map.ply.")
+    parser = ArgumentParser(
+        prog="python -m bench.export",
+        description="Write a keyframe's map snapshot (save_maps=every_keyframe) as a "
+        "3DGS PLY; every run already leaves its final map as map.ply.",
+    )
     parser.add_argument("run_dir", type=Path, help="a run dir")
     parser.add_argument("--keyframe", type=int, required=True, help="keyframe index K (maps/kf_KKK.npz)")
     parser.add_argument("--out", type=Path, default=None, help="PLY path (default RUN_DIR/map_kfKKK.ply)")

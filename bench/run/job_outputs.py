@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from omegaconf import DictConfig, OmegaConf
 
@@ -71,7 +71,8 @@ def keep(out: Path, task_cfg: DictConfig | None = None, into: Path | None = None
 
     if not HydraConfig.initialized():
         return
-    hydra_cfg = HydraConfig.instance().cfg
+    # Hydra annotates cfg as Optional[HydraConf]; set, it is the DictConfig {hydra: ...} (hydra-core 1.3)
+    hydra_cfg = cast(DictConfig, HydraConfig.instance().cfg)
     runtime_dir = OmegaConf.select(hydra_cfg, "hydra.runtime.output_dir", default=None)
     if runtime_dir is None or Path(str(runtime_dir)).resolve() != Path(out).resolve():
         return

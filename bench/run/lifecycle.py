@@ -21,7 +21,7 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import torch
 from omegaconf import DictConfig, OmegaConf
@@ -92,7 +92,7 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
     before Hydra starts), used as it is; a config that differs from it is validated again.
     """
     if isinstance(cfg, RunConfig):
-        cfg = OmegaConf.structured(cfg)
+        cfg = cast(DictConfig, OmegaConf.structured(cfg))  # a dataclass instance makes a DictConfig
     out = Path(out_dir or cfg.out_dir or ".").resolve()
     metrics_path = out / schema.METRICS_FILE
     try:
@@ -115,17 +115,30 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
     missing = [name for name, digest in keys["inputs"].items() if digest == "missing"]
     if missing:  # the fingerprint found them gone: refuse now, not at the frame that reads one
         more = f" and {len(missing) - 1} more" if len(missing) > 1 else ""
-        return _refused(out, f"input files: expected every file the dataset lists, found {missing[0]} missing{more}",
-                        keys, OmegaConf.to_yaml(cfg, resolve=True), cfg)
-    record = RunRecord(metrics_path, {
-        "status": "running", "error": None, "run": keys, "determinism": {}, "metrics": {}, "provenance": {},
-        "owner": owner(),
-    })  # fmt: skip
+        return _refused(
+            out,
+            f"input files: expected every file the dataset lists, found {missing[0]} missing{more}",
+            keys,
+            OmegaConf.to_yaml(cfg, resolve=True),
+            cfg,
+        )
+    record = RunRecord(
+        metrics_path,
+        {
+            "status": "running",
+            "error": None,
+            "run": keys,
+            "determinism": {},
+            "metrics": {},
+            "provenance": {},
+            "owner": owner(),
+        },
+    )
     start: dict[str, Any] | None = None  # the checkpoint a resumed run starts from
     level = logging.INFO  # of the redo line: a warning when a checkpoint was there but unusable
     final = out  # the run dir; a redo of a finished run works in its staging dir until it finishes
     reason = redo_reason(stored, keys) if conf.resume else "resume=false"
-    if conf.resume and reason is None:
+    if conf.resume and reason is None and stored is not None:  # None: stored holds the same finished run
         log.info("skipping %s: completed results of the same config, code and inputs exist", out)
         return RunResult(stored["status"], out, stored.get("metrics", {}), stored.get("error"), skipped=True)
     if stored is not None and stored.get("status") in schema.FINISHED:
@@ -148,8 +161,13 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
             log.log(level, "redoing %s: %s", final, reason)
     job_outputs.keep(final, cfg, out)
     write_text(out / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
-    record["checkpoint"] = {"every": conf.checkpoint.every, "written": 0, "mib_last": None, "write_s_total": 0.0,
-                            "resumed_from_frames": []}  # fmt: skip
+    record["checkpoint"] = {
+        "every": conf.checkpoint.every,
+        "written": 0,
+        "mib_last": None,
+        "write_s_total": 0.0,
+        "resumed_from_frames": [],
+    }
     if start is None:
         (out / TRAJ_EST).unlink(missing_ok=True)
     else:  # rows written after the checkpoint go; the loop appends from there
@@ -157,16 +175,22 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
         ckpt.truncate_rows(out / schema.KEYFRAMES_FILE, 1, start["rows"]["keyframes"])
         if (out / schema.MILESTONES_FILE).exists():
             ckpt.truncate_rows(out / schema.MILESTONES_FILE, 1, start["rows"].get("milestones", 0))
-        record["checkpoint"] = {**start["stats"], "every": conf.checkpoint.every,
-                                "resumed_from_frames": [*start["stats"]["resumed_from_frames"], start["frame"]]}
+        record["checkpoint"] = {
+            **start["stats"],
+            "every": conf.checkpoint.every,
+            "resumed_from_frames": [*start["stats"]["resumed_from_frames"], start["frame"]],
+        }
     record.save()
     if start is None:
         ckpt.remove(out)  # a previous run's checkpoints: the record they belonged to is replaced now
     stop: Interrupted | None = None
     preempt = Preemption()
     try:
-        with raise_on_signals(), held_preemption() as preempt, \
-                repeatable(conf.seed, conf.threads, conf.determinism, device) as det:
+        with (
+            raise_on_signals(),
+            held_preemption() as preempt,
+            repeatable(conf.seed, conf.threads, conf.determinism, device) as det,
+        ):
             record["determinism"] = det
             record["provenance"] = provenance.collect(device)  # after the thread count is set
             record["provenance"]["config_files"] = _config_files()
@@ -188,15 +212,19 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
                 out = final
     if stop is not None:
         if preempt.signum is not None and preempt.signum == stop.signum:
-            log.warning("%s: preempted after %d frames; checkpoint written, the launcher requeues the job",
-                        out, metrics.get("num_frames", 0))
+            log.warning(
+                "%s: preempted after %d frames; checkpoint written, the launcher requeues the job",
+                out,
+                metrics.get("num_frames", 0),
+            )
             preempt.hand_over()  # the launcher's own handler (submitit: requeue, then exit)
         raise Interrupted(stop.signum, f"{error}; partial results in {out}")
     return RunResult(status, out, metrics, error)
 
 
-def _refused(out: Path, error: str, keys: dict[str, Any], config_yaml: str | None = None,
-             task_cfg: DictConfig | None = None) -> RunResult:
+def _refused(
+    out: Path, error: str, keys: dict[str, Any], config_yaml: str | None = None, task_cfg: DictConfig | None = None
+) -> RunResult:
     """A run refused before any work: recorded ``failed``, unless ``out`` holds a previous run's
     record to keep (finished, resumable or live), which a refusal for a passing reason (data briefly
     unreachable, no CUDA on this node) must not replace."""
@@ -223,22 +251,32 @@ def _previous(out: Path) -> dict[str, Any] | None:
         who = stored.get("owner") or {}
         frames = (stored.get("metrics") or {}).get("num_frames", 0)
         stored = RunRecord(path, stored)
-        stored.close(status="interrupted",
-                     error=f"killed: process {who.get('pid')} stopped while running, after {frames} frames")
-        log.warning("%s: the previous run was killed while running (pid %s); recorded as interrupted",
-                    out, who.get("pid"))
+        stored.close(
+            status="interrupted", error=f"killed: process {who.get('pid')} stopped while running, after {frames} frames"
+        )
+        log.warning(
+            "%s: the previous run was killed while running (pid %s); recorded as interrupted", out, who.get("pid")
+        )
     return stored
 
 
-def _execute(built: ValidatedRun, out: Path, device: torch.device, record: RunRecord, seq: FrameSequence,
-             start: dict[str, Any] | None = None, preempt: Preemption | None = None):
+def _execute(
+    built: ValidatedRun,
+    out: Path,
+    device: torch.device,
+    record: RunRecord,
+    seq: FrameSequence,
+    start: dict[str, Any] | None = None,
+    preempt: Preemption | None = None,
+):
     t_start = time.perf_counter()
     cfg = built.config
     parts = build(cfg, device, seq, built)
     parts.keys = record["run"]
     if cfg.viz.pruning:
         parts.viz = parts.system.on_prune = PruneViz(parts.system, out, cfg.viz.every, describe(parts.keys))
-    record["metrics"] = metrics = {"num_frames": 0, "num_keyframes": 0}
+    metrics: dict[str, Any] = {"num_frames": 0, "num_keyframes": 0}
+    record["metrics"] = metrics
     if start is not None:
         restore(parts, start)
         if parts.viz is not None:  # the stopped run's pictures up to the checkpoint are this run's too

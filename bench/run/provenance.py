@@ -13,7 +13,15 @@ from typing import Any
 import torch
 
 PACKAGES = (
-    "pocketbench", "torch", "numpy", "evo", "torchmetrics", "hydra-core", "opencv-python-headless", "numba", "llvmlite",
+    "pocketbench",
+    "torch",
+    "numpy",
+    "evo",
+    "torchmetrics",
+    "hydra-core",
+    "opencv-python-headless",
+    "numba",
+    "llvmlite",
 )
 REPO = Path(__file__).resolve().parents[2]
 
@@ -37,14 +45,15 @@ def cpu_target() -> dict[str, str | None]:
         import llvmlite.binding as llvm
         import numba
 
-        numba_cpu = numba.config.CPU_NAME or llvm.get_host_cpu_name()
+        # numba.config sets its settings through globals() at import, out of a type checker's sight
+        numba_cpu = numba.config.CPU_NAME or llvm.get_host_cpu_name()  # type: ignore[attr-defined]
     except ImportError:
         numba_cpu = None
     return {"numba_cpu": numba_cpu, "torch_cpu_capability": torch.backends.cpu.get_cpu_capability()}
 
 
 def collect(device: torch.device) -> dict[str, Any]:
-    versions = {}
+    versions: dict[str, str | None] = {}
     for name in PACKAGES:
         try:
             versions[name] = version(name)
@@ -86,8 +95,10 @@ def code_version() -> dict[str, Any]:
     paths = [*CODE_PATHS, *(f":(exclude){p}" for p in READ_ONLY_PATHS)]
     commit = _git("rev-parse", "HEAD")
     listing = _git("ls-tree", "-r", "HEAD", "--", *CODE_PATHS)  # ls-tree takes no exclude pathspecs
-    tree = None if listing is None else "\n".join(
-        line for line in listing.splitlines() if _is_code(line.split("\t", 1)[-1])
+    tree = (
+        None
+        if listing is None
+        else "\n".join(line for line in listing.splitlines() if _is_code(line.split("\t", 1)[-1]))
     )
     # git's exclude pathspecs cannot take a file back in, so the run's figures are asked about apart
     status = _git("status", "--porcelain", "--untracked-files=no", "--", *paths)

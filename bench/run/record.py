@@ -82,8 +82,9 @@ def _json_default(o: Any) -> Any:
     raise TypeError(type(o))
 
 
-def record_refusal(out: Path, error: str, run: dict[str, Any], config_yaml: str | None = None,
-                   task_cfg: Any = None) -> str | None:
+def record_refusal(
+    out: Path, error: str, run: dict[str, Any], config_yaml: str | None = None, task_cfg: Any = None
+) -> str | None:
     """A ``failed`` record for a job refused before any work, with its one-line ``error`` (what the
     report reads), unless ``out`` holds a record to keep (``KEPT``): then nothing is written.
 

@@ -71,8 +71,9 @@ def relative_motion(
     if p0 is None or len(p0) < cfg.min_inliers:
         return None, 0
     lk = dict(winSize=(cfg.window_px, cfg.window_px), maxLevel=cfg.levels)
-    p1, st, _ = cv2.calcOpticalFlowPyrLK(prev_gray, cur_gray, p0, None, **lk)
-    pb, st_b, _ = cv2.calcOpticalFlowPyrLK(cur_gray, prev_gray, p1, None, **lk)
+    # cv2's stub types nextPts as a required array; None (OpenCV allocates the output) is what its docs show
+    p1, st, _ = cv2.calcOpticalFlowPyrLK(prev_gray, cur_gray, p0, None, **lk)  # type: ignore[call-overload]
+    pb, st_b, _ = cv2.calcOpticalFlowPyrLK(cur_gray, prev_gray, p1, None, **lk)  # type: ignore[call-overload]
     ok = (st[:, 0] == 1) & (st_b[:, 0] == 1) & (np.linalg.norm(pb - p0, axis=-1)[:, 0] < cfg.fb_max_px)
     p0, p1 = p0[ok, 0].astype(np.float64), p1[ok, 0].astype(np.float64)  # [M, 2]
     h, w = prev_depth_m.shape
@@ -92,8 +93,16 @@ def relative_motion(
     if prior is not None and np.isfinite(prior).all():
         rvec0, tvec0 = cv2.Rodrigues(prior[:3, :3].astype(np.float64))[0], prior[:3, 3:4].astype(np.float64).copy()
     found, rvec, tvec, inliers = cv2.solvePnPRansac(
-        pts, uv, K.astype(np.float64), None, rvec=rvec0, tvec=tvec0, useExtrinsicGuess=rvec0 is not None,
-        reprojectionError=cfg.reproj_px, iterationsCount=200, flags=cv2.SOLVEPNP_ITERATIVE,
+        pts,
+        uv,
+        K.astype(np.float64),
+        None,
+        rvec=rvec0,
+        tvec=tvec0,
+        useExtrinsicGuess=rvec0 is not None,
+        reprojectionError=cfg.reproj_px,
+        iterationsCount=200,
+        flags=cv2.SOLVEPNP_ITERATIVE,
     )
     n_in = 0 if inliers is None else len(inliers)
     if not found or n_in < cfg.min_inliers or not (np.isfinite(rvec).all() and np.isfinite(tvec).all()):

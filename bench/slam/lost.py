@@ -47,13 +47,15 @@ class LostDetector:
         if cfg.lost_check in ("depth", "both"):
             threshold = self.depth_threshold_m()
             if depth_l1 > threshold:
-                why.append(f"depth residual {depth_l1:.3f} m above {threshold:.3f} m "
-                           f"({cfg.lost_depth_ratio} x recent median)")
+                why.append(
+                    f"depth residual {depth_l1:.3f} m above {threshold:.3f} m ({cfg.lost_depth_ratio} x recent median)"
+                )
             else:  # flagged frames stay out of the baseline, so a loss cannot raise its own bar
-                self.depth_recent = (self.depth_recent + [depth_l1])[-cfg.lost_baseline_frames:]
+                self.depth_recent = (self.depth_recent + [depth_l1])[-cfg.lost_baseline_frames :]
         if cfg.lost_check in ("color", "both") and color_l1 > cfg.lost_residual:
             why.append(f"colour residual {color_l1:.3f} above {cfg.lost_residual}")
         self.bad_frames = self.bad_frames + 1 if why else 0
         if self.bad_frames >= cfg.lost_patience:
             raise TrackingLost(
-                f"tracking lost at frame {frame_index}: {' and '.join(why)} for {self.bad_frames} frames")
+                f"tracking lost at frame {frame_index}: {' and '.join(why)} for {self.bad_frames} frames"
+            )

@@ -17,7 +17,7 @@ import re
 from collections import defaultdict
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from omegaconf import DictConfig, OmegaConf
 
@@ -44,7 +44,7 @@ def expand(config: DictConfig, lines: Sequence[str]) -> list[list[str]]:
         from bench.sweep.studyfile import parse
 
         name = next((str(o.value()) for o in parsed if o.key_or_group == "study"), "?")
-        given = [o.input_line for o in parsed if o.key_or_group != "study"]
+        given = [o.input_line for o in parsed if o.key_or_group != "study" and o.input_line is not None]
         jobs = [job for _, job in expand_study(parse(name, study), given)]
     else:
         jobs = BasicSweeper.split_arguments(parsed, None)[0]  # Hydra's own expansion (hydra-core 1.3)
@@ -58,7 +58,7 @@ def own_dirs(config: DictConfig, jobs: list[list[str]]) -> list[list[str]]:
     from hydra._internal.config_loader_impl import get_overrides_dirname  # how Hydra names a job dir
     from hydra.core.override_parser.overrides_parser import OverridesParser
 
-    sweep = OmegaConf.to_container(config.hydra.sweep, resolve=False)
+    sweep = _sweep_node(config)
     if sweep.get("subdir") != _OVERRIDE_DIRNAME:
         return jobs  # a subdir of the user's (the job number, say): theirs to keep apart
     od = config.hydra.job.config.override_dirname
@@ -90,19 +90,27 @@ def job_dir(config: DictConfig, job: Sequence[str], num: int | None = None) -> P
     given = dict(_split(o) for o in job)
     if SUBDIR_KEY in given:
         return sweep_dir(config, job) / _unquoted(given[SUBDIR_KEY])
-    if OmegaConf.to_container(config.hydra.sweep, resolve=False).get("subdir") != _OVERRIDE_DIRNAME:
+    if _sweep_node(config).get("subdir") != _OVERRIDE_DIRNAME:
         return sweep_dir(config, job) / str(num)  # a subdir of the user's: by job number, as Hydra's default
     od = config.hydra.job.config.override_dirname
     parsed = OverridesParser.create().parse_overrides([o for o in job if not _is_hydra(o)])
     return sweep_dir(config, job) / get_overrides_dirname(parsed, list(od.exclude_keys), od.item_sep, od.kv_sep)
 
 
+def _sweep_node(config: DictConfig) -> dict[str, Any]:
+    """``hydra.sweep`` as written (``dir``, ``subdir``), interpolations unresolved."""
+    return cast(dict[str, Any], OmegaConf.to_container(config.hydra.sweep, resolve=False))  # a DictConfig node
+
+
 def sweep_dir(config: DictConfig, job: Sequence[str]) -> Path:
     """``hydra.sweep.dir`` as ``job`` resolves it: ``multirun/${sweep_name}`` with the job's ``sweep_name``."""
     given = dict(_split(o) for o in job)
-    node = OmegaConf.create({"sweep_name": given.get("sweep_name", OmegaConf.select(config, "sweep_name")),
-                             "hydra": {"sweep": {"dir": OmegaConf.to_container(config.hydra.sweep,
-                                                                               resolve=False)["dir"]}}})
+    node = OmegaConf.create(
+        {
+            "sweep_name": given.get("sweep_name", OmegaConf.select(config, "sweep_name")),
+            "hydra": {"sweep": {"dir": _sweep_node(config)["dir"]}},
+        }
+    )
     return Path(str(node.hydra.sweep.dir))
 
 
@@ -137,5 +145,7 @@ def _unquoted(value: str) -> str:
 
 def header(config: DictConfig, jobs: list[list[str]]) -> dict[str, Any]:
     """What the summary needs of the plan: each job's number, name and dir."""
-    return {"total": len(jobs), "planned": [{"num": i, "name": job_name(j), "dir": str(job_dir(config, j, i))}
-                                            for i, j in enumerate(jobs)]}
+    return {
+        "total": len(jobs),
+        "planned": [{"num": i, "name": job_name(j), "dir": str(job_dir(config, j, i))} for i, j in enumerate(jobs)],
+    }

@@ -39,13 +39,17 @@ def load(name: str, extra: Sequence[str] = ()) -> tuple[Study, list[Job]]:
         if not isinstance(exc, (HydraException, OmegaConfBaseException, YAMLError)):
             raise
         found = " ".join(str(exc).split())[:200]
-        raise ConfigError(f"study '{name}': expected a study file (hydra.sweeper.study with its sweeps) in "
-                          f"conf/study/{name}.yaml, found: {found}") from None
+        raise ConfigError(
+            f"study '{name}': expected a study file (hydra.sweeper.study with its sweeps) in "
+            f"conf/study/{name}.yaml, found: {found}"
+        ) from None
     study = parse(name, OmegaConf.select(cfg, "hydra.sweeper.study"))
     expanded = expand(study, extra)
     dirs = own_dirs(cfg, [job for _, job in expanded])
-    jobs = [Job(sweep, tuple(o for o in overrides if not o.startswith("hydra.")), job_dir(cfg, own, i))
-            for i, ((sweep, overrides), own) in enumerate(zip(expanded, dirs, strict=True))]
+    jobs = [
+        Job(sweep, tuple(o for o in overrides if not o.startswith("hydra.")), job_dir(cfg, own, i))
+        for i, ((sweep, overrides), own) in enumerate(zip(expanded, dirs, strict=True))
+    ]
     return study, jobs
 
 
@@ -53,8 +57,11 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if not argv or argv[0].startswith("-"):
         found = f"'{argv[0]}'" if argv else "nothing"
-        print(f"error: expected a study name (python -m bench.study NAME [OVERRIDE ...] lists the runs of "
-              f"conf/study/NAME.yaml), found {found}", file=sys.stderr)
+        print(
+            f"error: expected a study name (python -m bench.study NAME [OVERRIDE ...] lists the runs of "
+            f"conf/study/NAME.yaml), found {found}",
+            file=sys.stderr,
+        )
         return 2
     try:
         study, jobs = load(argv[0], argv[1:])
@@ -64,8 +71,11 @@ def main(argv: list[str] | None = None) -> int:
     for job in jobs:
         print(f"{job.run_dir}  {' '.join(job.overrides)}")
     done = sum((job.run_dir / "metrics.json").is_file() for job in jobs)
-    print(f"study {study.name}: {len(jobs)} runs in {len(study.sweeps)} sweeps, {done} with a metrics.json; "
-          f"report: {study.report.get('out', '(none)')}", file=sys.stderr)
+    print(
+        f"study {study.name}: {len(jobs)} runs in {len(study.sweeps)} sweeps, {done} with a metrics.json; "
+        f"report: {study.report.get('out', '(none)')}",
+        file=sys.stderr,
+    )
     return 0
 
 

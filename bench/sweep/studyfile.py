@@ -37,12 +37,16 @@ class Job:
 def parse(name: str, node: Mapping[str, Any] | None) -> Study:
     """The ``hydra.sweeper.study`` node of a composed config as a ``Study``; one line if it is malformed."""
     if not isinstance(node, Mapping) or not isinstance(node.get("sweeps"), Mapping) or not node["sweeps"]:
-        raise ConfigError(f"study '{name}': expected hydra.sweeper.study.sweeps, a mapping of sweep name to "
-                          f"overrides, found {node!r}")
+        raise ConfigError(
+            f"study '{name}': expected hydra.sweeper.study.sweeps, a mapping of sweep name to overrides, found {node!r}"
+        )
     sweeps = {}
     for sweep, overrides in node["sweeps"].items():
-        if not isinstance(overrides, Sequence) or isinstance(overrides, str) or \
-                not all(isinstance(o, str) for o in overrides):
+        if (
+            not isinstance(overrides, Sequence)
+            or isinstance(overrides, str)
+            or not all(isinstance(o, str) for o in overrides)
+        ):
             raise ConfigError(f"study '{name}' sweep '{sweep}': expected a list of overrides, found {overrides!r}")
         sweeps[str(sweep)] = list(overrides)
     report = dict(node.get("report") or {})
@@ -66,8 +70,9 @@ def expand(study: Study, extra: Sequence[str] = ()) -> list[tuple[str, list[str]
             parsed = parser.parse_overrides([f"sweep_name={sweep}", *overrides, *extra])
         except HydraException as exc:
             found = str(exc).strip().splitlines()[0]
-            raise ConfigError(f"study '{study.name}' sweep '{sweep}': expected overrides as on a command line, "
-                              f"found: {found}") from None
+            raise ConfigError(
+                f"study '{study.name}' sweep '{sweep}': expected overrides as on a command line, found: {found}"
+            ) from None
         for job in BasicSweeper.split_arguments(parsed, None)[0]:
             jobs.append((next(o.split("=", 1)[1] for o in job if o.startswith("sweep_name=")), job))
     return jobs

@@ -71,8 +71,12 @@ def run_table(status: str, out_dir: Path, metrics: dict[str, Any], wall_s: float
             value += " (no AlexNet weights: set eval.lpips_weights=PATH)"
         rows.append((label, value))
     if wall_s is not None:
-        phases = (("SLAM", "slam_wall_s"), ("first frame", "warmup_s"), ("refine", "refine_s"),
-                  ("evaluation", "eval_s"))
+        phases = (
+            ("SLAM", "slam_wall_s"),
+            ("first frame", "warmup_s"),
+            ("refine", "refine_s"),
+            ("evaluation", "eval_s"),
+        )
         parts = [f"{k} {metrics[m]:.1f} s" for k, m in phases if metrics.get(m) is not None]
         rows.append(("wall time", format_duration(wall_s) + (f" ({', '.join(parts)})" if parts else "")))
     rows.append(("run dir", str(out_dir)))
@@ -114,8 +118,7 @@ def sweep_table(jobs: list[dict[str, Any]]) -> str:
         metrics = job.get("metrics") or {}
         cells = [show(metrics.get(key)) for _, key, show in SWEEP_COLUMNS]
         wall = job.get("wall_s")
-        body.append([name, job.get("status", "?"), *cells,
-                     format_duration(wall) if wall is not None else "n/a"])  # fmt: skip
+        body.append([name, job.get("status", "?"), *cells, format_duration(wall) if wall is not None else "n/a"])
     widths = [max(len(r[i]) for r in [header, *body]) for i in range(len(header))]
     left = {0, 1}
 
@@ -144,7 +147,7 @@ def read_jobs(sweep_dir: str | Path) -> tuple[dict[str, Any], list[dict[str, Any
             records.append(json.loads(ln))
         except json.JSONDecodeError:  # a line cut short by a killed job
             continue
-    header = next((r for r in records if "total" in r), {})
+    header: dict[str, Any] = next((r for r in records if "total" in r), {})
     return header, [r for r in records if "status" in r]
 
 

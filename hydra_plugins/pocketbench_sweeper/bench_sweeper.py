@@ -93,8 +93,15 @@ class BenchSweeper(BasicSweeper):
         out = job_dir(self.config, overrides, job_idx)
         record_refusal(out, message, _run_keys(self.config, overrides))
         print(f"error: {message}", file=sys.stderr)
-        job = {"num": job_idx, "name": job_name(overrides), "status": "failed", "error": message, "dir": str(out),
-               "metrics": {}, "wall_s": None}  # fmt: skip
+        job = {
+            "num": job_idx,
+            "name": job_name(overrides),
+            "status": "failed",
+            "error": message,
+            "dir": str(out),
+            "metrics": {},
+            "wall_s": None,
+        }
         print(record_job(self.config.hydra.sweep.dir, job), file=sys.stderr, flush=True)
         return False
 
@@ -107,10 +114,12 @@ def _run_keys(config: Any, overrides: Sequence[str]) -> dict[str, Any]:
     keys = ("strategy.name", "dataset.name", "slam.name", "seed")
     base = {k: OmegaConf.select(config, k, default=None) for k in keys}
     seed = given.get("seed", base["seed"])
-    return run_keys({
-        "strategy": {"name": given.get("strategy") or base["strategy.name"]},
-        "dataset": {"name": given.get("dataset") or base["dataset.name"]},
-        "slam": {"name": given.get("slam") or base["slam.name"]},
-        "seq": given.get("seq"),
-        "seed": int(seed) if str(seed).isdigit() else None,
-    })
+    return run_keys(
+        {
+            "strategy": {"name": given.get("strategy") or base["strategy.name"]},
+            "dataset": {"name": given.get("dataset") or base["dataset.name"]},
+            "slam": {"name": given.get("slam") or base["slam.name"]},
+            "seq": given.get("seq"),
+            "seed": int(seed) if str(seed).isdigit() else None,
+        }
+    )

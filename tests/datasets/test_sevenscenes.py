@@ -203,19 +203,28 @@ def _empty(seq: Path) -> None:
 
 BAD = {
     # name: (breakage of the sequence folder, parts of the error line)
-    "missing-depth": (_no_depth, ["frame 000003", "expected frame-000003.depth.png beside",
-                                  "frame-000003.color.jpg, frame-000003.pose.txt, found none"]),
+    "missing-depth": (
+        _no_depth,
+        [
+            "frame 000003",
+            "expected frame-000003.depth.png beside",
+            "frame-000003.color.jpg, frame-000003.pose.txt, found none",
+        ],
+    ),
     "missing-pose": (_no_pose, ["frame 000004", "expected frame-000004.pose.txt beside", "found none"]),
     "missing-colour": (_no_colour, ["expected frame-000002.color.png or .color.jpg beside", "found none"]),
     "non-rigid-pose": (_scaled_pose, ["frame-000002.pose.txt: expected a rigid transform", "det R = 1.33"]),
     "pose-not-4x4": (_text_pose, ["frame-000002.pose.txt: expected 16 numbers (a 4x4 matrix), found 12"]),
-    "depth-vs-colour-size": (_depth_size, ["depth image", "frame-000000.depth.png: expected 640x480",
-                                           "found 320x240"]),
-    "later-colour-size": (_later_colour_size, ["colour image", "frame-000003.color.jpg: expected 640x480 (the "
-                                               "first frame's colour image), found 320x240"]),
+    "depth-vs-colour-size": (_depth_size, ["depth image", "frame-000000.depth.png: expected 640x480", "found 320x240"]),
+    "later-colour-size": (
+        _later_colour_size,
+        ["colour image", "frame-000003.color.jpg: expected 640x480 (the first frame's colour image), found 320x240"],
+    ),
     "later-depth-size": (_later_depth_size, ["frame-000005.depth.png: expected 640x480", "found 640x240"]),
-    "no-frames": (_empty, ["expected frame-NNNNNN.color.png (or .jpg), .depth.png and .pose.txt files",
-                           "found (empty)"]),
+    "no-frames": (
+        _empty,
+        ["expected frame-NNNNNN.color.png (or .jpg), .depth.png and .pose.txt files", "found (empty)"],
+    ),
 }
 
 
@@ -235,8 +244,7 @@ def test_missing_root_and_sequence(copy, tmp_path):
     _one_line(exc, "sevenscenes root not found", str(tmp_path / "nowhere"), "see datasets/sevenscenes/README.md")
     with pytest.raises(DatasetError) as exc:
         _open(copy, "seq-02")
-    _one_line(exc, "sevenscenes sequence 'seq-02' not found", f"expected a folder {copy.resolve()}/seq-02",
-              "has: seq;")
+    _one_line(exc, "sevenscenes sequence 'seq-02' not found", f"expected a folder {copy.resolve()}/seq-02", "has: seq;")
     with pytest.raises(DatasetError) as exc:
         _open(copy, "3")
     _one_line(exc, "sequence '3' not found", "seq-03")
@@ -269,10 +277,23 @@ def test_a_short_run_through_the_cli(copy, tmp_path):
     from tests.test_bad_input import run_cli
 
     run_dir = tmp_path / "run"
-    res = run_cli(["dataset=sevenscenes", f"dataset.root={copy}", "seq=seq",
-                   "dataset.downscale=8", "max_frames=5", "slam.tracking_iters=15", "slam.mapping_iters=30",
-                   "slam.refine_iters=30", "eval.every=2", "eval.lpips=false", "progress=false", "threads=1",
-                   f"hydra.run.dir={run_dir}"])
+    res = run_cli(
+        [
+            "dataset=sevenscenes",
+            f"dataset.root={copy}",
+            "seq=seq",
+            "dataset.downscale=8",
+            "max_frames=5",
+            "slam.tracking_iters=15",
+            "slam.mapping_iters=30",
+            "slam.refine_iters=30",
+            "eval.every=2",
+            "eval.lpips=false",
+            "progress=false",
+            "threads=1",
+            f"hydra.run.dir={run_dir}",
+        ]
+    )
     assert res.code == 0, res.stderr
     record = json.loads((run_dir / "metrics.json").read_text())
     assert record["status"] == "ok", record.get("error")

@@ -58,8 +58,11 @@ def test_default_street_keeps_its_pixels():
         assert np.array_equal(rgb.numpy(), ref[f"rgb{i}"]) and np.array_equal(depth.numpy(), ref[f"depth{i}"])
 
 
-@pytest.mark.parametrize("cfg", [{"n_frames": 200}, {"n_frames": 200, "route": "grid"},
-                                 {"n_frames": 120, "route_file": KITTI06}], ids=["straight", "grid", "kitti06"])
+@pytest.mark.parametrize(
+    "cfg",
+    [{"n_frames": 200}, {"n_frames": 200, "route": "grid"}, {"n_frames": 120, "route_file": KITTI06}],
+    ids=["straight", "grid", "kitti06"],
+)
 def test_culled_cast_has_the_pixels_of_the_brute_force_cast(cfg, request):
     if "route_file" in cfg:
         cfg = {**cfg, "route_file": str(request.getfixturevalue("shared") / KITTI06)}
@@ -117,11 +120,14 @@ def test_route_file_is_followed_on_the_ground(shared):
     assert (seq[10].depth_m > 0).all()
 
 
-@pytest.mark.parametrize("text,match", [
-    ("1 0 0 0 0 1 0 0 0 0 1\n", "expected 12 finite numbers per line"),
-    ("1 0 0 0 0 1 0 0 0 0 1 nan\n", "expected 12 finite numbers per line"),
-    ("1 0 0 0 0 1 0 0 0 0 1 0\n" * 3, "expected at least n_frames=5 poses, found 3"),
-])
+@pytest.mark.parametrize(
+    "text,match",
+    [
+        ("1 0 0 0 0 1 0 0 0 0 1\n", "expected 12 finite numbers per line"),
+        ("1 0 0 0 0 1 0 0 0 0 1 nan\n", "expected 12 finite numbers per line"),
+        ("1 0 0 0 0 1 0 0 0 0 1 0\n" * 3, "expected at least n_frames=5 poses, found 3"),
+    ],
+)
 def test_bad_route_file_is_a_one_line_dataset_error(tmp_path, text, match):
     path = tmp_path / "poses.txt"
     path.write_text(text)

@@ -36,7 +36,8 @@ def lower_rows(h: int, w: int, first: int) -> torch.Tensor:
 def test_ms_ssim_is_torchmetrics_with_splatams_arguments() -> None:
     pred, target = pair()
     direct = multiscale_structural_similarity_index_measure(
-        pred.permute(2, 0, 1)[None], target.permute(2, 0, 1)[None], data_range=1.0)  # defaults: 11 px, 1.5, relu
+        pred.permute(2, 0, 1)[None], target.permute(2, 0, 1)[None], data_range=1.0
+    )  # defaults: 11 px, 1.5, relu
     assert ms_ssim(pred, target) == float(direct)
     assert ms_ssim(target, target) == 1.0
     assert ms_ssim(pred.float(), target.float()) == pytest.approx(ms_ssim(pred, target), abs=1e-6)  # float64 inside
@@ -82,12 +83,15 @@ def test_released_mask_is_the_silhouette_above_one_half() -> None:
     assert protocol_mask("released", None, sil) is not None  # no depth needed
 
 
-@pytest.mark.parametrize(("args", "says"), [
-    (("bogus", torch.ones(2, 2), None), "eval.protocol: expected one of full, splatam, released, found 'bogus'"),
-    (("splatam", None, torch.ones(2, 2)), "protocol splatam: expected depth [h, w], found None"),
-    (("splatam", torch.ones(2, 2), None, 5.0, 1.0), "expected depth_near_m < depth_far_m, found 5.0 and 1.0"),
-    (("released", torch.ones(2, 2), torch.ones(2, 2, 1)), "protocol released: expected a silhouette [h, w]"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (("bogus", torch.ones(2, 2), None), "eval.protocol: expected one of full, splatam, released, found 'bogus'"),
+        (("splatam", None, torch.ones(2, 2)), "protocol splatam: expected depth [h, w], found None"),
+        (("splatam", torch.ones(2, 2), None, 5.0, 1.0), "expected depth_near_m < depth_far_m, found 5.0 and 1.0"),
+        (("released", torch.ones(2, 2), torch.ones(2, 2, 1)), "protocol released: expected a silhouette [h, w]"),
+    ],
+)
 def test_mask_refuses_bad_input_in_one_line(args: tuple, says: str) -> None:
     with pytest.raises(MetricError) as err:
         protocol_mask(*args)
@@ -156,12 +160,19 @@ def test_full_protocol_is_todays_image_metrics_to_the_bit() -> None:
     assert frame_metrics("full", *frames[0], None)["ssim"] == ssim(*frames[0])
 
 
-@pytest.mark.parametrize(("protocol", "mask", "says"), [
-    ("full", torch.ones(180, 200, dtype=torch.bool), "protocol full: expected no mask"),
-    ("splatam", None, "protocol splatam: expected a bool mask of [180, 200], found None"),
-    ("released", torch.ones(180, 200), "protocol released: expected a bool mask of [180, 200], found torch.float32"),
-    ("bogus", None, "eval.protocol: expected one of full, splatam, released"),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("protocol", "mask", "says"),
+    [
+        ("full", torch.ones(180, 200, dtype=torch.bool), "protocol full: expected no mask"),
+        ("splatam", None, "protocol splatam: expected a bool mask of [180, 200], found None"),
+        (
+            "released",
+            torch.ones(180, 200),
+            "protocol released: expected a bool mask of [180, 200], found torch.float32",
+        ),
+        ("bogus", None, "eval.protocol: expected one of full, splatam, released"),
+    ],
+)
 def test_frame_metrics_refuses_a_mask_that_does_not_fit(protocol: str, mask: torch.Tensor | None, says: str) -> None:
     with pytest.raises(MetricError, match=None) as err:
         frame_metrics(protocol, *pair(), mask)
@@ -169,10 +180,20 @@ def test_frame_metrics_refuses_a_mask_that_does_not_fit(protocol: str, mask: tor
 
 
 def test_mean_metrics_skips_frames_without_a_value() -> None:
-    res = mean_metrics([{"psnr_db": 20.0, "ssim": 0.5, "ms_ssim": None, "lpips": None, "mask_frac": 0.5},
-                        {"psnr_db": 30.0, "ssim": 0.7, "ms_ssim": None, "lpips": None, "mask_frac": 0.7}])
-    assert res == {"psnr_db": 25.0, "ssim": pytest.approx(0.6), "ms_ssim": None, "lpips": None,
-                   "mask_frac": pytest.approx(0.6), "num_frames": 2}
+    res = mean_metrics(
+        [
+            {"psnr_db": 20.0, "ssim": 0.5, "ms_ssim": None, "lpips": None, "mask_frac": 0.5},
+            {"psnr_db": 30.0, "ssim": 0.7, "ms_ssim": None, "lpips": None, "mask_frac": 0.7},
+        ]
+    )
+    assert res == {
+        "psnr_db": 25.0,
+        "ssim": pytest.approx(0.6),
+        "ms_ssim": None,
+        "lpips": None,
+        "mask_frac": pytest.approx(0.6),
+        "num_frames": 2,
+    }
     with pytest.raises(MetricError, match="no frames to evaluate"):
         mean_metrics([])
 

@@ -176,10 +176,13 @@ def test_every_estimated_position_is_aligned_onto_ground_truth(align):
     np.testing.assert_allclose(aligned_positions(est, gt, "none"), est_xyz)
 
 
-@pytest.mark.parametrize(("rows", "line", "says"), [
-    (["1.0", "2.0", "2.0"], 4, "found 2.000000000 again (duplicate of line 3)"),
-    (["1.0", "3.0", "2.0"], 4, "found 2.000000000 after 3.000000000 (line 3)"),
-])
+@pytest.mark.parametrize(
+    ("rows", "line", "says"),
+    [
+        (["1.0", "2.0", "2.0"], 4, "found 2.000000000 again (duplicate of line 3)"),
+        (["1.0", "3.0", "2.0"], 4, "found 2.000000000 after 3.000000000 (line 3)"),
+    ],
+)
 def test_read_tum_rejects_duplicate_and_unsorted_stamps(tmp_path, rows, line, says) -> None:
     path = tmp_path / "t.txt"
     path.write_text("# t x y z qx qy qz qw\n" + "".join(f"{t} 0 0 0 0 0 0 1\n" for t in rows))

@@ -42,11 +42,17 @@ def write_run(
     }  # fmt: skip
     # what the real harness adds beside the documented metrics (bench/run/lifecycle.py)
     values.update(
-        peak_mem_source="torch_live", ate_mean_m=0.09, ate_max_m=0.2, ate_max_diff_s=0.01,
-        ate_first_frame=0, ate_last_frame=19, path_length_m=4.1, phase_s={"track": 10.0, "map": 8.0},
+        peak_mem_source="torch_live",
+        ate_mean_m=0.09,
+        ate_max_m=0.2,
+        ate_max_diff_s=0.01,
+        ate_first_frame=0,
+        ate_last_frame=19,
+        path_length_m=4.1,
+        phase_s={"track": 10.0, "map": 8.0},
         memory_method={"cpu_rss": "psutil", "torch_live": True},
         keep_ratio=keep_ratio,
-    )  # fmt: skip
+    )
     values.update(metrics)
     if "peak_mem_mib" in metrics:
         values["torch_live_peak_mib"] = metrics["peak_mem_mib"]
@@ -54,8 +60,15 @@ def write_run(
     doc = {
         "status": status,
         "error": "cuda out of memory" if failed else ("tracking lost at frame 12" if status == "lost" else None),
-        "run": dict(strategy=strategy, dataset=dataset, seq=seq, seed=seed, keep_ratio=keep_ratio, config_hash="ab12",
-                    **({} if slam_preset is None else {"slam_preset": slam_preset})),
+        "run": dict(
+            strategy=strategy,
+            dataset=dataset,
+            seq=seq,
+            seed=seed,
+            keep_ratio=keep_ratio,
+            config_hash="ab12",
+            **({} if slam_preset is None else {"slam_preset": slam_preset}),
+        ),
         "metrics": {} if failed else values,
         "provenance": {"git_commit": "abc", "git_dirty": False, "versions": {"torch": "2.3.0"}, "device": "cpu"},
     }
@@ -124,11 +137,28 @@ def sweep_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     Scored with ``eval.protocol=splatam``, the masked protocol the paper's rows may stand beside."""
     root = tmp_path_factory.mktemp("multirun")
     for i, (strategy, keep, seq, seed, status, metrics) in enumerate(SWEEP):
-        write_run(root / "2024-05-01" / "12-00-00" / str(i), strategy=strategy, seq=seq, seed=seed,
-                  keep_ratio=keep, status=status, eval_protocol="splatam", **metrics)  # fmt: skip
+        write_run(
+            root / "2024-05-01" / "12-00-00" / str(i),
+            strategy=strategy,
+            seq=seq,
+            seed=seed,
+            keep_ratio=keep,
+            status=status,
+            eval_protocol="splatam",
+            **metrics,
+        )
     for i, (strategy, keep, seq, seed, status, metrics) in enumerate(EUROC):
-        write_run(root / "2024-05-02" / "09-30-00" / str(i), strategy=strategy, seq=seq, dataset="euroc",
-                  seed=seed, keep_ratio=keep, status=status, eval_protocol="splatam", **metrics)  # fmt: skip
+        write_run(
+            root / "2024-05-02" / "09-30-00" / str(i),
+            strategy=strategy,
+            seq=seq,
+            dataset="euroc",
+            seed=seed,
+            keep_ratio=keep,
+            status=status,
+            eval_protocol="splatam",
+            **metrics,
+        )
     write_run(root / "2024-05-03" / "running" / "0", strategy="area", seq="00", status="running")
     bad = root / "2024-05-03" / "broken" / "0"
     bad.mkdir(parents=True)

@@ -128,8 +128,14 @@ def test_method_names_follow_the_paper() -> None:
 
 @pytest.mark.parametrize(
     ("dataset", "seq", "paper"),
-    [("kitti", "6", "06"), ("kitti", "06", "06"), ("euroc", "MH_01_easy", "MH01"), ("euroc", "MH01", "MH01"),
-     ("euroc", "V1_01_micro", "V101"), ("tum", "fr2_desk", "fr2_desk")],
-)  # fmt: skip
+    [
+        ("kitti", "6", "06"),
+        ("kitti", "06", "06"),
+        ("euroc", "MH_01_easy", "MH01"),
+        ("euroc", "MH01", "MH01"),
+        ("euroc", "V1_01_micro", "V101"),
+        ("tum", "fr2_desk", "fr2_desk"),
+    ],
+)
 def test_sequences_map_to_the_paper_spelling(dataset: str, seq: str, paper: str) -> None:
     assert paper_sequence(dataset, seq) == paper

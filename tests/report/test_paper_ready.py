@@ -102,13 +102,25 @@ def test_rendered_table_page(report, tmp_path):
         pytest.skip("pdflatex/pdftotext not on PATH (apt: texlive-latex-base texlive-latex-recommended poppler-utils)")
     doc = tmp_path / "doc.tex"
     table = (report.out / "accuracy_kitti.tex").as_posix()
-    doc.write_text("\\documentclass{article}\n\\usepackage{booktabs}\n\\begin{document}\n"
-                   f"\\input{{{table}}}\n\\end{{document}}\n")  # fmt: skip
-    proc = subprocess.run([pdflatex, "-interaction=nonstopmode", "-halt-on-error", doc.name], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    doc.write_text(
+        "\\documentclass{article}\n\\usepackage{booktabs}\n\\begin{document}\n"
+        f"\\input{{{table}}}\n\\end{{document}}\n"
+    )
+    proc = subprocess.run(
+        [pdflatex, "-interaction=nonstopmode", "-halt-on-error", doc.name],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, [ln for ln in proc.stdout.splitlines() if ln.startswith("!")] or proc.stdout[-2000:]
-    text = subprocess.run([pdftotext, "-layout", "-f", "1", "-l", "1", "doc.pdf", "-"], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=60).stdout  # fmt: skip
+    text = subprocess.run(
+        [pdftotext, "-layout", "-f", "1", "-l", "1", "doc.pdf", "-"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    ).stdout
     for word in ("ATE", "PSNR", "LSG-SLAM baseline", "Ours (w/ Tile Budget)", "Avg", "tracking lost"):
         assert word in text, (word, text[:2000])
     assert "\\" not in text  # no unrendered LaTeX on the page

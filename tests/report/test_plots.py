@@ -85,13 +85,18 @@ def test_an_absolute_target_beside_its_ratio_runs_is_labelled_and_drawn_apart() 
     """The scale study runs pocket at its keep ratio and at an absolute target (no keep ratio)."""
     from bench.report.style import series_label
 
-    found = [Variant("none", None, "none", "default"), Variant("pocket", 0.4, "pocket", "default"),
-             Variant("pocket", None, "pocket", "default")]  # fmt: skip
+    found = [
+        Variant("none", None, "none", "default"),
+        Variant("pocket", 0.4, "pocket", "default"),
+        Variant("pocket", None, "pocket", "default"),
+    ]
     panels = panel_groups(found)
     together = [p for p in panels if sum(v.strategy == "pocket" for v in p.variants) == 2]
     assert together
-    ratio, absolute = (next(v for v in together[0].variants if v.strategy == "pocket" and (v.keep_ratio is None) == a)
-                       for a in (False, True))  # fmt: skip
+    ratio, absolute = (
+        next(v for v in together[0].variants if v.strategy == "pocket" and (v.keep_ratio is None) == a)
+        for a in (False, True)
+    )
     assert series_label(absolute, together[0]).endswith("absolute target")
     assert series_label(ratio, together[0]).endswith("keep 0.4")
     assert ratio_style(ratio, together[0]) != ratio_style(absolute, together[0])
@@ -137,9 +142,19 @@ def test_redraw_needs_only_the_report_folder(tmp_path: Path, make_run) -> None:
 def _pruned_npz(path: Path, kf: int, n_pruned: int) -> None:
     rng = np.random.default_rng(kf)
     image = rng.integers(0, 255, (12, 16, 3), dtype=np.uint8)
-    np.savez_compressed(path / f"pruned_kf{kf:03d}.npz", image=image, before=image, after=image // 2,
-                        uv=rng.random((n_pruned, 2)).astype(np.float32) * 10, coverage=rng.random(n_pruned) + 0.5,
-                        n_pruned=n_pruned, n_before=100, kf=kf, frame=3 * kf, label="x")  # fmt: skip
+    np.savez_compressed(
+        path / f"pruned_kf{kf:03d}.npz",
+        image=image,
+        before=image,
+        after=image // 2,
+        uv=rng.random((n_pruned, 2)).astype(np.float32) * 10,
+        coverage=rng.random(n_pruned) + 0.5,
+        n_pruned=n_pruned,
+        n_before=100,
+        kf=kf,
+        frame=3 * kf,
+        label="x",
+    )
 
 
 def test_pruned_figure_puts_strategies_on_their_last_common_keyframe(tmp_path: Path, make_run) -> None:

@@ -15,8 +15,13 @@ from bench.report.tables import variants
 
 def test_slopes_are_per_100_m_and_skip_the_first_keyframe() -> None:
     d = np.array([0.0, 10.0, 20.0, 30.0, 40.0])
-    kf = pd.DataFrame({"distance_m": d, "n_gaussians": [5000, 1200, 1400, 1600, 1800],  # kf 0: the first seeding
-                       "torch_live_peak_mib": 2.0 + 0.05 * d})  # fmt: skip
+    kf = pd.DataFrame(
+        {
+            "distance_m": d,
+            "n_gaussians": [5000, 1200, 1400, 1600, 1800],  # kf 0: the first seeding
+            "torch_live_peak_mib": 2.0 + 0.05 * d,
+        }
+    )
     got = run_slopes(kf, "torch_live_peak_mib")
     assert got["gaussians_per_100m"] == pytest.approx(2000.0)
     assert got["gaussians_at_0m"] == pytest.approx(1000.0)
@@ -54,24 +59,46 @@ def test_each_preset_is_judged_against_its_own_baseline() -> None:
     """splatam's pocket matches splatam's baseline and lies far from default's: judged against its own
     preset it is within noise, and each preset names its own smallest peak per strategy."""
     rows, by_path = [], {}
-    values = {("none", "default"): (0.50, 20.0, 70.0), ("pocket", "default"): (0.90, 18.0, 60.0),
-              ("none", "splatam"): (2.00, 16.0, 65.0), ("pocket", "splatam"): (2.02, 16.01, 50.0)}
+    values = {
+        ("none", "default"): (0.50, 20.0, 70.0),
+        ("pocket", "default"): (0.90, 18.0, 60.0),
+        ("none", "splatam"): (2.00, 16.0, 65.0),
+        ("pocket", "splatam"): (2.02, 16.01, 50.0),
+    }
     for (strategy, preset), (ate, psnr, peak) in values.items():
         for seed, jitter in ((0, -0.01), (1, 0.01)):
             path = f"{strategy}_{preset}_{seed}"
-            rows.append({"path": path, "status": "ok", "strategy": strategy, "slam_preset": preset, "seed": seed,
-                         "keep_ratio": None if strategy == "none" else 0.4})
-            by_path[path] = pd.DataFrame({"frames": [400], "ate_rmse_m": [ate + jitter], "psnr_db": [psnr + jitter],
-                                          "peak_mem_mib": [peak + jitter]})
+            rows.append(
+                {
+                    "path": path,
+                    "status": "ok",
+                    "strategy": strategy,
+                    "slam_preset": preset,
+                    "seed": seed,
+                    "keep_ratio": None if strategy == "none" else 0.4,
+                }
+            )
+            by_path[path] = pd.DataFrame(
+                {
+                    "frames": [400],
+                    "ate_rmse_m": [ate + jitter],
+                    "psnr_db": [psnr + jitter],
+                    "peak_mem_mib": [peak + jitter],
+                }
+            )
     one = pd.DataFrame(rows)
     text = "\n".join(_answer(one, variants(one), by_path, "none"))
-    verdicts = {line.split("|")[1].strip(): line.split("|")[6].strip() for line in text.splitlines()
-                if line.startswith("| ") and "[" in line}
+    verdicts = {
+        line.split("|")[1].strip(): line.split("|")[6].strip()
+        for line in text.splitlines()
+        if line.startswith("| ") and "[" in line
+    }
     assert verdicts["Ours (w/ Tile Budget) [default]"] == "no"
     assert verdicts["Ours (w/ Tile Budget) [splatam]"] == "yes"
     assert "`slam=splatam`: LSG-SLAM baseline: 65.0 MiB" in text and "Ours (w/ Tile Budget): 50.0 MiB" in text
-    assert "`slam=default`: LSG-SLAM baseline: 70.0 MiB (LSG-SLAM baseline [default]); " \
-           "Ours (w/ Tile Budget): none" in text
+    assert (
+        "`slam=default`: LSG-SLAM baseline: 70.0 MiB (LSG-SLAM baseline [default]); Ours (w/ Tile Budget): none" in text
+    )
 
 
 def test_a_strategy_better_than_its_baseline_keeps_accuracy_and_a_worse_one_does_not() -> None:
@@ -82,15 +109,31 @@ def test_a_strategy_better_than_its_baseline_keeps_accuracy_and_a_worse_one_does
     for strategy, (ate, psnr, peak) in values.items():
         for seed, jitter in ((0, -0.02), (1, 0.02)):
             path = f"{strategy}_{seed}"
-            rows.append({"path": path, "status": "ok", "strategy": strategy, "slam_preset": "default", "seed": seed,
-                         "keep_ratio": None if strategy == "none" else 0.4})
-            by_path[path] = pd.DataFrame({"frames": [400], "ate_rmse_m": [ate + jitter],
-                                          "psnr_db": [psnr + (0.1 if strategy == "opacity" else 1) * jitter],
-                                          "peak_mem_mib": [peak + jitter]})
+            rows.append(
+                {
+                    "path": path,
+                    "status": "ok",
+                    "strategy": strategy,
+                    "slam_preset": "default",
+                    "seed": seed,
+                    "keep_ratio": None if strategy == "none" else 0.4,
+                }
+            )
+            by_path[path] = pd.DataFrame(
+                {
+                    "frames": [400],
+                    "ate_rmse_m": [ate + jitter],
+                    "psnr_db": [psnr + (0.1 if strategy == "opacity" else 1) * jitter],
+                    "peak_mem_mib": [peak + jitter],
+                }
+            )
     one = pd.DataFrame(rows)
     text = "\n".join(_answer(one, variants(one), by_path, "none"))
-    verdicts = {line.split("|")[1].strip(): line.split("|")[6].strip() for line in text.splitlines()
-                if line.startswith("| ") and "---" not in line and "method" not in line}
+    verdicts = {
+        line.split("|")[1].strip(): line.split("|")[6].strip()
+        for line in text.splitlines()
+        if line.startswith("| ") and "---" not in line and "method" not in line
+    }
     assert verdicts["LightGaussian"] == "better (ATE)"
     assert verdicts["Ours (w/o Tile Budget)"] == "no"
     assert "LightGaussian: 55.0 MiB" in text and "Ours (w/o Tile Budget): none" in text

@@ -40,7 +40,7 @@ def test_settings_are_columns_and_a_section_per_preset(tmp_path: Path) -> None:
     assert by_preset == {"default": {"auto (fused)"}, "splatam": {"torch"}}  # auto names what it chose
     assert set(runs["slam.densify_silhouette"]) == {0.95, 0.5}
     text = (tmp_path / "out" / "tables.md").read_text()
-    section = text[text.index("## Harness settings"):]
+    section = text[text.index("## Harness settings") :]
     assert "| kitti | splatam | 2 | torch |" in section
     assert "`prune.every`" in section and "`slam.tracking_iters`" not in section  # unset keys are left out
     assert result.runs["slam.refine_iters"].tolist() == [0, 0, 0]
@@ -55,12 +55,29 @@ def test_ratio_plot_draws_the_preset_that_swept_the_ratio(tmp_path: Path) -> Non
     """The area sweep ran under splatam only; default-preset rows must not turn it off or join it."""
     for seed in (0, 1):
         for keep in (0.2, 0.4, 0.8):
-            _run(tmp_path / "s", f"area{keep}_{seed}", "splatam", "auto", 0.5, strategy="area", keep_ratio=keep,
-                 seed=seed, ate_rmse_m=0.1 + keep + seed / 100)  # fmt: skip
+            _run(
+                tmp_path / "s",
+                f"area{keep}_{seed}",
+                "splatam",
+                "auto",
+                0.5,
+                strategy="area",
+                keep_ratio=keep,
+                seed=seed,
+                ate_rmse_m=0.1 + keep + seed / 100,
+            )
         for preset in ("default", "splatam"):
             _run(tmp_path / "s", f"pocket_{preset}_{seed}", preset, "auto", 0.5, strategy="pocket", seed=seed)
-            _run(tmp_path / "s", f"none_{preset}_{seed}", preset, "auto", 0.5, strategy="none", keep_ratio=None,
-                 seed=seed)  # fmt: skip
+            _run(
+                tmp_path / "s",
+                f"none_{preset}_{seed}",
+                preset,
+                "auto",
+                0.5,
+                strategy="none",
+                keep_ratio=None,
+                seed=seed,
+            )
     make_report([tmp_path / "s"], tmp_path / "out")
     assert (tmp_path / "out" / "ratio_kitti.png").stat().st_size > 0
 
@@ -69,8 +86,9 @@ def test_cells_pooling_runs_of_different_settings_are_named(tmp_path: Path) -> N
     """Seeds of one cell at two resolutions would be averaged as noise: the report says so."""
     for seed, downscale in ((0, 4), (1, 2)):
         run_dir = write_run(tmp_path / "s" / f"r{seed}", strategy="none", seq="06", seed=seed, keep_ratio=None)
-        (run_dir / "config.yaml").write_text(CONFIG.format(backend="auto", sil=0.5).replace("downscale: 4",
-                                             f"downscale: {downscale}"))  # fmt: skip
+        (run_dir / "config.yaml").write_text(
+            CONFIG.format(backend="auto", sil=0.5).replace("downscale: 4", f"downscale: {downscale}")
+        )
     result = make_report([tmp_path / "s"], tmp_path / "out")
     expected = "2 runs pooled as seeds differ in dataset.downscale (4, 2)"
     assert any(expected in w for w in result.warnings), result.warnings

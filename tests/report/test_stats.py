@@ -40,9 +40,16 @@ def noise_report(tmp_path_factory, make_run):
     ate = {"none": (0.10, 0.11, 0.12), "pocket": (0.30, 0.31, 0.32), "area": (0.105, 0.115, 0.11)}
     for strategy, values in ate.items():
         for seed, value in enumerate(values):
-            make_run(root / f"{strategy}_{seed}", strategy=strategy, seq="00", seed=seed,
-                     keep_ratio=None if strategy == "none" else 0.4, ate_rmse_m=value,
-                     peak_mem_mib=1000.0 - 100 * (strategy != "none") + seed, fps=1.0 + 0.1 * seed)  # fmt: skip
+            make_run(
+                root / f"{strategy}_{seed}",
+                strategy=strategy,
+                seq="00",
+                seed=seed,
+                keep_ratio=None if strategy == "none" else 0.4,
+                ate_rmse_m=value,
+                peak_mem_mib=1000.0 - 100 * (strategy != "none") + seed,
+                fps=1.0 + 0.1 * seed,
+            )
     return make_report([root], tmp_path_factory.mktemp("noise_out"))
 
 
@@ -82,8 +89,9 @@ def test_stats_csv_has_ci_and_welch_per_cell(noise_report):
 
 def test_a_single_seed_sweep_says_it_has_no_noise_estimate(tmp_path, make_run):
     for strategy in ("none", "pocket"):
-        make_run(tmp_path / "runs" / strategy, strategy=strategy, seq="00", keep_ratio=None if strategy == "none"
-                 else 0.4)  # fmt: skip
+        make_run(
+            tmp_path / "runs" / strategy, strategy=strategy, seq="00", keep_ratio=None if strategy == "none" else 0.4
+        )
     report = make_report([tmp_path / "runs"], tmp_path / "out")
     for table in report.tables:
         assert "1 seed: no noise estimate; a difference from the baseline may be seed noise." in table.notes

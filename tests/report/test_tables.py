@@ -131,8 +131,15 @@ def test_other_baseline_is_honoured(report) -> None:
 def test_baseline_at_several_keep_ratios_pairs_by_ratio(tmp_path: Path, make_run) -> None:
     from bench.report.collect import collect
 
-    for i, (strategy, keep, mem) in enumerate([("none", 0.2, 1000.0), ("none", 0.4, 800.0), ("pocket", 0.2, 250.0),
-                                               ("pocket", 0.4, 400.0), ("mask", 0.3, 500.0)]):  # fmt: skip
+    for i, (strategy, keep, mem) in enumerate(
+        [
+            ("none", 0.2, 1000.0),
+            ("none", 0.4, 800.0),
+            ("pocket", 0.2, 250.0),
+            ("pocket", 0.4, 400.0),
+            ("mask", 0.3, 500.0),
+        ]
+    ):
         make_run(tmp_path / str(i), strategy=strategy, seq="00", keep_ratio=keep, peak_mem_mib=mem)
     tables, warnings = build_tables(collect([tmp_path]).runs)
     perf = next(t for t in tables if t.kind == "performance")
@@ -146,11 +153,23 @@ def test_baseline_at_several_keep_ratios_pairs_by_ratio(tmp_path: Path, make_run
 def test_presets_are_separate_rows_compared_with_their_own_baseline(tmp_path: Path, make_run) -> None:
     from bench.report.collect import collect
 
-    for i, (strategy, preset, mem, final) in enumerate([("none", None, 1000.0, 9000), ("pocket", None, 900.0, 8800),
-                                                        ("none", "splatam", 600.0, 4000),
-                                                        ("pocket", "splatam", 300.0, 3000)]):  # fmt: skip
-        make_run(tmp_path / str(i), strategy=strategy, seq="00", keep_ratio=0.4, slam_preset=preset,
-                 peak_mem_mib=mem, gaussians_final=final)  # fmt: skip
+    for i, (strategy, preset, mem, final) in enumerate(
+        [
+            ("none", None, 1000.0, 9000),
+            ("pocket", None, 900.0, 8800),
+            ("none", "splatam", 600.0, 4000),
+            ("pocket", "splatam", 300.0, 3000),
+        ]
+    ):
+        make_run(
+            tmp_path / str(i),
+            strategy=strategy,
+            seq="00",
+            keep_ratio=0.4,
+            slam_preset=preset,
+            peak_mem_mib=mem,
+            gaussians_final=final,
+        )
     runs = collect([tmp_path]).runs
     assert sorted(runs["slam_preset"]) == ["default", "default", "splatam", "splatam"]  # old runs: default
     tables, _ = build_tables(runs)
@@ -172,9 +191,12 @@ def test_paper_rows_sit_beside_measured_rows(report) -> None:
 
     def printed(table_: str, dataset: str, method: str, metric: str, seq: str) -> str:
         hit = paper[
-            (paper.table == table_) & (paper.dataset == dataset) & (paper.method == method)
-            & (paper.metric == metric) & (paper.sequence == seq)
-        ]  # fmt: skip
+            (paper.table == table_)
+            & (paper.dataset == dataset)
+            & (paper.method == method)
+            & (paper.metric == metric)
+            & (paper.sequence == seq)
+        ]
         return hit["value"].item()
 
     assert entry(acc, "ATE [m]", "(paper) LSG-SLAM", "00") == printed("accuracy", "kitti", "LSG-SLAM", "ATE", "00")
@@ -200,8 +222,13 @@ def test_paper_ssim_stands_beside_our_ms_ssim(report) -> None:
     titles = [b.title for b in acc.blocks]
     assert titles == ["ATE [m]", "PSNR [dB]", "SSIM", "MS-SSIM", "LPIPS"]
     paper = pd.read_csv(resources.files("bench.report").joinpath("paper_tables.csv").open(), dtype=str)
-    printed = paper[(paper.table == "accuracy") & (paper.dataset == "kitti") & (paper.method == "LSG-SLAM")
-                    & (paper.metric == "SSIM") & (paper.sequence == "00")]["value"].item()  # fmt: skip
+    printed = paper[
+        (paper.table == "accuracy")
+        & (paper.dataset == "kitti")
+        & (paper.method == "LSG-SLAM")
+        & (paper.metric == "SSIM")
+        & (paper.sequence == "00")
+    ]["value"].item()
     assert entry(acc, "MS-SSIM", "(paper) LSG-SLAM", "00") == printed
     assert not any(r.paper for r in next(b for b in acc.blocks if b.title == "SSIM").rows)
     assert any("eval.protocol=splatam" in n for n in acc.notes) and "splatam" in acc.caption
@@ -228,13 +255,21 @@ def test_full_protocol_runs_stand_without_paper_rows(tmp_path, make_run) -> None
 
 def test_mixed_protocols_get_a_table_each(tmp_path, make_run) -> None:
     for i, protocol in enumerate(("full", "splatam", "released")):
-        make_run(tmp_path / f"none_{i}", strategy="none", seq="00", keep_ratio=None, eval_protocol=protocol,
-                 psnr_db=20.0 + i, ms_ssim=0.8)
+        make_run(
+            tmp_path / f"none_{i}",
+            strategy="none",
+            seq="00",
+            keep_ratio=None,
+            eval_protocol=protocol,
+            psnr_db=20.0 + i,
+            ms_ssim=0.8,
+        )
     runs = collect([tmp_path]).runs
     tables, warnings = build_tables(runs, load_paper_tables())
     names = [t.name for t in tables]
-    assert names == [f"{kind}_kitti_{p}" for p in ("full", "splatam", "released") for kind in ("accuracy",
-                                                                                                 "performance")]
+    assert names == [
+        f"{kind}_kitti_{p}" for p in ("full", "splatam", "released") for kind in ("accuracy", "performance")
+    ]
     for t in tables:  # one protocol per table, every cell one run: nothing pooled across protocols
         assert t.protocol in t.name and f"eval.protocol={t.protocol}" in t.caption
     for t in (t for t in tables if t.kind == "accuracy"):

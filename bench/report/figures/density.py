@@ -20,7 +20,7 @@ from bench.report.style import (
     panel_groups,
     series_label,
     strategy_colour,
-)  # fmt: skip
+)
 from bench.report.tables import Variant, variant_runs, variants
 
 DENSITY_CELLS = 160  # heatmap cells along the longer image side (Fig. 4 is a coarse heatmap too)
@@ -109,6 +109,8 @@ def plot_density(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Wa
         bar.ax.yaxis.set_major_formatter(FormatStrFormatter("%g"))
         bar.ax.yaxis.set_minor_formatter(NullFormatter())  # log minor labels collide on a short bar
         bar.ax.tick_params(labelsize=8)
-    fig_title(fig, f"Gaussian density at the last keyframe, {dataset_name(dataset)} {seq} (lowest seed; frame colour = "
-                 "method)")  # fmt: skip
+    fig_title(
+        fig,
+        f"Gaussian density at the last keyframe, {dataset_name(dataset)} {seq} (lowest seed; frame colour = method)",
+    )
     return _save(fig, out / f"density_{file_token(dataset)}_{file_token(seq)}.png")

@@ -38,9 +38,21 @@ def plot_drift(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn
     if not any(v is not None and len(v) for v in cache.values()):
         return None
     rows: tuple[tuple[str, KfValue], ...] = (
-        ("position error in the drive's plane [m]\n(unaligned, from the first frame)",
-         lambda _r, d: d["in_plane_err_m"]),
+        (
+            "position error in the drive's plane [m]\n(unaligned, from the first frame)",
+            lambda _r, d: d["in_plane_err_m"],
+        ),
         ("error off the drive's plane [m]\n(height, for a flat drive)", lambda _r, d: d["off_plane_err_m"]),
     )
-    return plot_per_keyframe(runs, dataset, seq, out, warn, "pose_error_vs_distance", "Unaligned pose error against "
-                             "distance", rows, x_col="path_length_m", cache=cache)
+    return plot_per_keyframe(
+        runs,
+        dataset,
+        seq,
+        out,
+        warn,
+        "pose_error_vs_distance",
+        "Unaligned pose error against distance",
+        rows,
+        x_col="path_length_m",
+        cache=cache,
+    )

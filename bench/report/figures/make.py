@@ -19,8 +19,13 @@ from bench.report.names import sequence_sort_key
 
 
 def make_plots(
-    runs: pd.DataFrame, out: Path, warn: Warn, formats: tuple[str, ...] = ("png",), dpi: int = DPI,
-    keyframes: dict[str, pd.DataFrame] | None = None, milestones: dict[str, pd.DataFrame] | None = None,
+    runs: pd.DataFrame,
+    out: Path,
+    warn: Warn,
+    formats: tuple[str, ...] = ("png",),
+    dpi: int = DPI,
+    keyframes: dict[str, pd.DataFrame] | None = None,
+    milestones: dict[str, pd.DataFrame] | None = None,
     long_drives: bool = False,
 ) -> list[Path]:
     """Every figure the runs support, in each of ``formats``; finished runs only. ``keyframes`` and
@@ -28,8 +33,13 @@ def make_plots(
     ``long_drives``: also memory against distance and accuracy at the milestones (``eval.at_frames``)."""
     check_figure_options(formats, dpi)
     previous = dict(_output)
-    _output.update(formats=tuple(formats), dpi=int(dpi), keyframes=keyframes or {}, milestones=milestones or {},
-                   long_drives=long_drives)
+    _output.update(
+        formats=tuple(formats),
+        dpi=int(dpi),
+        keyframes=keyframes or {},
+        milestones=milestones or {},
+        long_drives=long_drives,
+    )
     try:
         first = _make_plots(runs, out, warn)
     finally:

@@ -28,5 +28,15 @@ def plot_milestones(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn:
         ("ATE RMSE [m]\n(the trajectory so far)", lambda _r, ms: ms["ate_rmse_m"]),
         ("PSNR [dB]\n(the map then, frames so far)", lambda _r, ms: ms["psnr_db"]),
     )
-    return plot_per_keyframe(runs, dataset, seq, out, warn, "accuracy_vs_distance", "Accuracy against distance",
-                             rows, x_col="path_length_m", cache=cache)
+    return plot_per_keyframe(
+        runs,
+        dataset,
+        seq,
+        out,
+        warn,
+        "accuracy_vs_distance",
+        "Accuracy against distance",
+        rows,
+        x_col="path_length_m",
+        cache=cache,
+    )

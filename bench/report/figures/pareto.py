@@ -19,7 +19,7 @@ from bench.report.style import (
     ratio_style,
     strategy_colour,
     strategy_keys,
-)  # fmt: skip
+)
 from bench.report.tables import Variant, variant_runs, variants
 
 
@@ -67,14 +67,34 @@ def plot_pareto(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
                 complete = min(covered, mem_covered) == n_seqs
                 colour = strategy_colour(variant.strategy, known)
                 _, marker = ratio_style(variant, panel)
-                seeds = pd.concat([_per_seed_average(vr, "peak_mem_mib"), _per_seed_average(vr, metric)], axis=1,
-                                  keys=["mem", "value"]).dropna()  # fmt: skip
+                seeds = pd.concat(
+                    [_per_seed_average(vr, "peak_mem_mib"), _per_seed_average(vr, metric)],
+                    axis=1,
+                    keys=["mem", "value"],
+                ).dropna()
                 most_seeds = max(most_seeds, len(seeds))
                 if len(seeds) >= 2:
-                    ax.errorbar(mem, value, xerr=seeds["mem"].std(), yerr=seeds["value"].std(), fmt="none",
-                                ecolor=colour, elinewidth=1.0, capsize=2, zorder=2)  # fmt: skip
-                ax.scatter(mem, value, s=40, marker=marker, zorder=3, color=colour if complete else "white",
-                           edgecolors=colour, linewidths=1.2)  # fmt: skip
+                    ax.errorbar(
+                        mem,
+                        value,
+                        xerr=seeds["mem"].std(),
+                        yerr=seeds["value"].std(),
+                        fmt="none",
+                        ecolor=colour,
+                        elinewidth=1.0,
+                        capsize=2,
+                        zorder=2,
+                    )
+                ax.scatter(
+                    mem,
+                    value,
+                    s=40,
+                    marker=marker,
+                    zorder=3,
+                    color=colour if complete else "white",
+                    edgecolors=colour,
+                    linewidths=1.2,
+                )
                 if complete:
                     full.append((mem, value))
                 hollow = hollow or not complete

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pandas as pd
+from matplotlib.artist import Artist
 from matplotlib.patches import Patch
 
 from bench.report.figures.output import Warn, _save
@@ -21,7 +22,7 @@ from bench.report.style import (
     ratio_style,
     strategy_colour,
     strategy_keys,
-)  # fmt: skip
+)
 from bench.report.tables import variant_runs, variants
 
 # keyframes.csv memory columns as a reader knows them
@@ -33,24 +34,41 @@ PROBE_NAMES: dict[str, str] = {
 }
 X_LABELS = {"frame": "frame", "distance_m": "distance driven [m]", "path_length_m": "distance driven [m]"}
 MEMORY_VS_DISTANCE: tuple[str, str, tuple[tuple[str, KfValue], ...]] = (
-    "memory_vs_distance", "Memory against distance", (
-        ("Gaussians in the map [thousands]",
-         lambda _r, kf: kf["n_gaussians"] / 1e3 if "n_gaussians" in kf.columns else None),
+    "memory_vs_distance",
+    "Memory against distance",
+    (
+        (
+            "Gaussians in the map [thousands]",
+            lambda _r, kf: kf["n_gaussians"] / 1e3 if "n_gaussians" in kf.columns else None,
+        ),
         ("peak memory [MiB]", lambda r, kf: _peak(r, kf)),
-    ))  # fmt: skip
+    ),
+)
 # (file stem, figure title, rows: (y label, value of one run's keyframes.csv))
 PER_KEYFRAME: tuple[tuple[str, str, tuple[tuple[str, KfValue], ...]], ...] = (
-    ("memory_per_keyframe", "Memory per keyframe", (
-        ("peak memory [MiB]", _peak),
-        ("map state [MiB]\n(parameters, gradients, Adam)", lambda _r, kf: kf["state_mib"]),
-    )),
-    ("gaussians_per_keyframe", "Gaussians per keyframe", (
-        ("Gaussians in the map [thousands]",
-         lambda _r, kf: kf["n_gaussians"] / 1e3 if "n_gaussians" in kf.columns else None),
-        ("Gaussians added since the start\n[thousands]",
-         lambda _r, kf: kf["n_added"].cumsum() / 1e3 if "n_added" in kf.columns else None),
-    )),
-)  # fmt: skip
+    (
+        "memory_per_keyframe",
+        "Memory per keyframe",
+        (
+            ("peak memory [MiB]", _peak),
+            ("map state [MiB]\n(parameters, gradients, Adam)", lambda _r, kf: kf["state_mib"]),
+        ),
+    ),
+    (
+        "gaussians_per_keyframe",
+        "Gaussians per keyframe",
+        (
+            (
+                "Gaussians in the map [thousands]",
+                lambda _r, kf: kf["n_gaussians"] / 1e3 if "n_gaussians" in kf.columns else None,
+            ),
+            (
+                "Gaussians added since the start\n[thousands]",
+                lambda _r, kf: kf["n_added"].cumsum() / 1e3 if "n_added" in kf.columns else None,
+            ),
+        ),
+    ),
+)
 
 
 def _markevery(points: int) -> int | None:
@@ -59,9 +77,18 @@ def _markevery(points: int) -> int | None:
     return None if points <= 60 else max(1, points // 30)
 
 
-def plot_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Warn, stem: str, title: str,
-                      rows: tuple[tuple[str, KfValue], ...], x_col: str = "frame",
-                      cache: dict[str, pd.DataFrame | None] | None = None) -> Path | None:  # fmt: skip
+def plot_per_keyframe(
+    runs: pd.DataFrame,
+    dataset: str,
+    seq: str,
+    out: Path,
+    warn: Warn,
+    stem: str,
+    title: str,
+    rows: tuple[tuple[str, KfValue], ...],
+    x_col: str = "frame",
+    cache: dict[str, pd.DataFrame | None] | None = None,
+) -> Path | None:
     """Small multiples of per-keyframe quantities (paper Fig. 5): one column of panels per preset
     (and per keep-ratio sweep), one row per quantity, y shared along a row; every seed of a
     variant pooled into a mean line with a ± std band. ``cache``: run path -> the table to read
@@ -108,7 +135,7 @@ def plot_per_keyframe(runs: pd.DataFrame, dataset: str, seq: str, out: Path, war
         axes[row, 0].set_ylabel(label)
     for ax in axes.ravel():
         apply_fonts(ax)
-    handles = strategy_keys(panels, known)
+    handles: list[Artist] = list(strategy_keys(panels, known))  # line keys, then a Patch for the band
     if most_seeds >= 2:
         handles.append(key(f"line: mean of {most_seeds} seeds", "grey"))
         handles.append(Patch(color="grey", alpha=0.25, label="band: ± 1 std over seeds"))

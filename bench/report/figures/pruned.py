@@ -16,7 +16,7 @@ from bench.report.style import (
     panel_groups,
     series_label,
     strategy_colour,
-)  # fmt: skip
+)
 from bench.report.tables import Variant, variant_runs, variants
 
 PRUNED_GLOB = viz.PRUNED_GLOB
@@ -75,8 +75,9 @@ def plot_pruned(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: War
         _image_axes(axes[0, 0], "0.5")
         for ax in axes[0, 1:]:
             ax.set_axis_off()
-        note = axes[0, 1].text(0.0, 0.5, PRUNED_NOTE, transform=axes[0, 1].transAxes, va="center", ha="left",
-                               fontsize=8)  # fmt: skip
+        note = axes[0, 1].text(
+            0.0, 0.5, PRUNED_NOTE, transform=axes[0, 1].transAxes, va="center", ha="left", fontsize=8
+        )
         note.set_in_layout(False)  # the text may run over the empty panel beside it
         points = None
         for row, (variant, r) in enumerate(data, start=1):
@@ -84,16 +85,16 @@ def plot_pruned(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: War
             name = series_label(variant, panel)
             for col, (image, when) in enumerate(((r["before"], "before"), (r["after"], "after"))):
                 axes[row, col].imshow(image)
-                axes[row, col].set_title(f"render {when} the prune ({viz.caption_psnr_db(image, r['image']):.2f} dB)",
-                                         fontsize=8)  # fmt: skip
+                axes[row, col].set_title(
+                    f"render {when} the prune ({viz.caption_psnr_db(image, r['image']):.2f} dB)", fontsize=8
+                )
                 _image_axes(axes[row, col], colour)
             points = viz.draw_centres(axes[row, 2], r, norm, size=2.0)
             axes[row, 2].set_title(f"{int(r['n_pruned']):,} of {int(r['n_before']):,} Gaussians pruned", fontsize=8)
             axes[row, 0].set_ylabel(name.replace(" (", "\n("), fontsize=8)
             _image_axes(axes[row, 2], colour)
         if points is not None:
-            fig.colorbar(points, ax=axes[1:, 2].tolist(), label="coverage $C_i$ [px]",
-                         shrink=0.6)  # fmt: skip
+            fig.colorbar(points, ax=axes[1:, 2].tolist(), label="coverage $C_i$ [px]", shrink=0.6)
         where = ", " + panel.title.replace("\n", " ") if panel.title else ""
         fig_title(fig, f"What each strategy pruned, {dataset_name(dataset)} {seq}{where} (PSNR against the keyframe)")
         token = f"_{file_token(panel.title)}" if panel.title else ""

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import torch
@@ -57,10 +58,18 @@ class PruneViz:
         coverage = before.coverage[pruned] if before.coverage is not None else torch.ones(len(uv))  # [P]
         path = self.out_dir / f"pruned_kf{kf_idx:03d}.npz"
         np.savez_compressed(
-            path, image=_u8(kf.rgb), before=_u8(before.color), after=_u8(after),
-            uv=uv[inside].cpu().numpy().astype(np.float32), coverage=coverage[inside].cpu().numpy().astype(np.float32),
-            n_pruned=int(pruned.sum()), n_before=int(len(pruned)), kf=kf_idx, frame=kf.index, label=self.label,
-        )  # fmt: skip
+            path,
+            image=_u8(kf.rgb),
+            before=_u8(before.color),
+            after=_u8(after),
+            uv=uv[inside].cpu().numpy().astype(np.float32),
+            coverage=coverage[inside].cpu().numpy().astype(np.float32),
+            n_pruned=int(pruned.sum()),
+            n_before=int(len(pruned)),
+            kf=kf_idx,
+            frame=kf.index,
+            label=self.label,
+        )
         self.written.append(path)
 
     def draw_all(self) -> list[Path]:
@@ -84,7 +93,7 @@ def coverage_norm(values: list[np.ndarray]) -> LogNorm:
 def draw_centres(ax, record: dict, norm: LogNorm, size: float = 3.0):
     """The keyframe in grey with the pruned centres on it, coloured by C_i; returns the scatter."""
     ax.imshow(record["image"].mean(axis=2), cmap="gray", vmin=0, vmax=255)
-    uv, c = record["uv"], np.maximum(record["coverage"], norm.vmin)
+    uv, c = record["uv"], np.maximum(record["coverage"], cast(float, norm.vmin))  # coverage_norm sets vmin
     order = np.argsort(c)  # the largest C_i on top
     points = ax.scatter(uv[order, 0], uv[order, 1], c=c[order], s=size, cmap=CMAP, norm=norm, linewidths=0)
     h, w = record["image"].shape[:2]
@@ -100,8 +109,11 @@ def draw(npz: Path, png: Path) -> Path:
     fig = Figure(figsize=(10.0, 2 * 4.6 * h / w + 0.8), layout="constrained")
     axes = fig.subplots(2, 2)
     before_db, after_db = caption_psnr_db(r["before"], r["image"]), caption_psnr_db(r["after"], r["image"])
-    panels = (("keyframe image", r["image"]), (f"render before the prune ({before_db:.2f} dB)", r["before"]),
-              (f"render after the prune ({after_db:.2f} dB)", r["after"]))  # fmt: skip
+    panels = (
+        ("keyframe image", r["image"]),
+        (f"render before the prune ({before_db:.2f} dB)", r["before"]),
+        (f"render after the prune ({after_db:.2f} dB)", r["after"]),
+    )
     for ax, (title, image) in zip(axes.ravel(), panels, strict=False):
         ax.imshow(image)
         ax.set_title(title, fontsize="small")
@@ -112,7 +124,10 @@ def draw(npz: Path, png: Path) -> Path:
     ax.set_title(f"centres of the {int(r['n_pruned']):,} pruned Gaussians", fontsize="small")
     ax.set_axis_off()
     fig.colorbar(points, ax=ax, label="coverage $C_i$ [px]", shrink=0.9)
-    fig.suptitle(f"{r['label']}: keyframe {int(r['kf'])} (frame {int(r['frame'])}), pruned {int(r['n_pruned']):,} "
-                 f"of {int(r['n_before']):,} Gaussians; PSNR against the keyframe", fontsize="medium")  # fmt: skip
+    fig.suptitle(
+        f"{r['label']}: keyframe {int(r['kf'])} (frame {int(r['frame'])}), pruned {int(r['n_pruned']):,} "
+        f"of {int(r['n_before']):,} Gaussians; PSNR against the keyframe",
+        fontsize="medium",
+    )
     fig.savefig(png, dpi=110)
     return png

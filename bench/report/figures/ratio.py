@@ -20,7 +20,7 @@ from bench.report.style import (
     legend_outside,
     new_figure,
     strategy_colour,
-)  # fmt: skip
+)
 from bench.report.tables import variant_runs, variants
 
 DODGE = 0.008  # keep-ratio offset between strategies run at one ratio, so their bars do not overlap
@@ -54,8 +54,13 @@ def plot_ratio(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
     ratios is a line with a band, one run at a single ratio a point with a bar, the unpruned
     baseline a horizontal line with its band."""
     found = variants(runs)
-    swept = sorted({v.slam_preset for v in found if sum(u.strategy == v.strategy and u.slam_preset == v.slam_preset
-                                                         for u in found) > 1})  # fmt: skip
+    swept = sorted(
+        {
+            v.slam_preset
+            for v in found
+            if sum(u.strategy == v.strategy and u.slam_preset == v.slam_preset for u in found) > 1
+        }
+    )
     if not swept:
         return None  # no strategy ran at two keep ratios: nothing to plot against
     known = sorted(set(runs["strategy"]))
@@ -81,22 +86,30 @@ def plot_ratio(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
                 colour = strategy_colour(strategy, known)
                 numeric = sorted((k, v, e) for k, v, e, _ in points if k is not None and v is not None)
                 if len(numeric) > 1:
-                    x, y, e = (np.array(t, dtype=float) for t in zip(*numeric, strict=True))
-                    band(ax, x, y, e, colour)
+                    xs, ys, es = (np.array(t, dtype=float) for t in zip(*numeric, strict=True))
+                    band(ax, xs, ys, es, colour)
                 elif numeric:
                     k, v, e = numeric[0]
                     k += DODGE * (sorted(by_strategy).index(strategy) - (len(by_strategy) - 1) / 2)
                     ax.errorbar([k], [v], yerr=None if math.isnan(e) else [e], fmt="s", color=colour, capsize=3, ms=5)
-                elif len(points) == 1 and points[0][1] is not None:
-                    _, v, e, _ = points[0]
-                    ax.axhline(v, color=colour, ls=":", lw=1.3)
-                    if not math.isnan(e):
-                        ax.axhspan(v - e, v + e, color=colour, alpha=0.08, lw=0)
+                elif len(points) == 1 and (level := points[0][1]) is not None:
+                    spread = points[0][2]
+                    ax.axhline(level, color=colour, ls=":", lw=1.3)
+                    if not math.isnan(spread):
+                        ax.axhspan(level - spread, level + spread, color=colour, alpha=0.08, lw=0)
                 lost = [k for k, _, _, is_lost in points if is_lost and k is not None]
                 if lost:
                     any_lost = True
-                    ax.plot(lost, [0.02] * len(lost), "x", ms=9, mew=2, color=colour,
-                            transform=ax.get_xaxis_transform(), clip_on=False)  # fmt: skip
+                    ax.plot(
+                        lost,
+                        [0.02] * len(lost),
+                        "x",
+                        ms=9,
+                        mew=2,
+                        color=colour,
+                        transform=ax.get_xaxis_transform(),
+                        clip_on=False,
+                    )
                 style = ("-", "o") if len(numeric) > 1 else ("none", "s") if numeric else (":", "")
                 name = method_name(strategy) + ("" if numeric else " (no pruning)")
                 handles.append(key(name, colour, style[0], style[1]))

@@ -28,13 +28,24 @@ def memory_timeline(path: Path, windows: list[dict[str, Any]], title: str = "") 
         for key, style, label in SERIES:
             vals = [w.get(key) for w in windows]
             if any(v is not None for v in vals):
-                mem_ax.plot(frames, [np.nan if v is None else v for v in vals], style, marker="o", ms=3,
-                            color="black", label=label)  # fmt: skip
-        count_ax.plot(frames, [w["n_gaussians"] / 1e3 for w in windows], "-o", ms=3, color="black",
-                      label="in the map")  # fmt: skip
+                mem_ax.plot(
+                    frames,
+                    [np.nan if v is None else v for v in vals],
+                    style,
+                    marker="o",
+                    ms=3,
+                    color="black",
+                    label=label,
+                )
+        count_ax.plot(frames, [w["n_gaussians"] / 1e3 for w in windows], "-o", ms=3, color="black", label="in the map")
         if all("n_added" in w for w in windows):
-            count_ax.plot(frames, np.cumsum([w["n_added"] for w in windows]) / 1e3, ":", color="black",
-                          label="added since the start")  # fmt: skip
+            count_ax.plot(
+                frames,
+                np.cumsum([w["n_added"] for w in windows]) / 1e3,
+                ":",
+                color="black",
+                label="added since the start",
+            )
     mem_ax.set_yscale("log")
     mem_ax.set_ylabel("memory per keyframe window [MiB]")
     count_ax.set_ylabel("Gaussians [thousands]")

@@ -30,7 +30,7 @@ from bench.report.style import (
     ratio_style,
     strategy_colour,
     strategy_keys,
-)  # fmt: skip
+)
 from bench.report.tables import Variant, variant_runs, variants
 
 
@@ -101,8 +101,14 @@ def plot_trajectory(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn:
             ax.plot(gt[:, axes_idx[0]], gt[:, axes_idx[1]], "-", color="0.6", lw=3.0, zorder=1)
         for variant, xyz, lost in paths:
             ls, _ = ratio_style(variant, panel)
-            ax.plot(xyz[:, axes_idx[0]], xyz[:, axes_idx[1]], ls=ls, lw=1.3, zorder=2,
-                    color=strategy_colour(variant.strategy, known))  # fmt: skip
+            ax.plot(
+                xyz[:, axes_idx[0]],
+                xyz[:, axes_idx[1]],
+                ls=ls,
+                lw=1.3,
+                zorder=2,
+                color=strategy_colour(variant.strategy, known),
+            )
             if lost:
                 any_lost = True
                 ax.plot(*xyz[-1, axes_idx], "x", ms=7, mew=2, color=strategy_colour(variant.strategy, known))
