@@ -1,4 +1,4 @@
-"""``python -m bench.list_strategies``: installed pruning strategies (the command lives in ``bench.cli``)."""
+"""``python -m bench.list_strategies``: installed pruning strategies (the command: ``bench.cli.list_strategies``)."""
 
 import sys
 

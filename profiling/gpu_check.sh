@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The GPU check of the gsplat backend, in one call (README, "gsplat backend"): install the wheels in
+# The GPU check of the gsplat backend, in one call (docs/architecture.md, the gsplat rasterizer): install the wheels in
 # whl/, time gsplat's JIT compile, run the agreement tests, then KITTI 06 at full resolution with
 # `none` and `pocket` on gsplat and on the torch reference, and summarise each run.
 # Run it from a folder holding the checkout's files, whl/ (gsplat, pocketbench and the missing

@@ -1,5 +1,5 @@
 """One line per run dir: status, ATE, PSNR, FPS, wall time, and the CUDA (or CPU) peaks of the first,
-middle and last keyframe windows; for the GPU check of the gsplat backend (README).
+middle and last keyframe windows; for the GPU check of the gsplat backend (docs/architecture.md).
 
     python profiling/gpu_summary.py RUN_DIR [RUN_DIR ...]
 """

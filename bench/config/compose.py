@@ -7,7 +7,7 @@ from the ``ConfigStore`` (``schema/dataset/NAME``, ``schema/strategy/NAME``) and
 so a mistyped key or a wrongly typed value fails at composition, not deep inside a run. Ranges and
 choices live on the same fields (``bench.config.settings.setting``) and are checked as each dataclass is built.
 Dataset schemas are found through the dataset registry (``bench.datasets.schema``), not imported here.
-``bench.run.lifecycle`` converts the composed config once (``to_run_config``) and hands dataclasses down.
+``bench.cli.validate.validate`` converts the composed config once (``to_run_config``) and hands dataclasses down.
 ``register_configs`` runs when ``bench.cli.entry`` is imported, before Hydra composes anything.
 """
 
@@ -53,7 +53,8 @@ class EvalConfig:
     # estimate <-> ground-truth timestamp association for ATE/RPE
     max_diff_s: float = setting(0.01, "float", lo=0.0, lo_open=True)
     rpe: bool = False
-    lpips: bool = True  # computed only where AlexNet weights exist locally (see README)
+    # computed only where AlexNet weights exist locally (docs/run-directory.md, "What is measured, exactly")
+    lpips: bool = True
     lpips_weights: str | None = setting(None, "path", nullable=True)
     # milestones: after this many frames, the map as it is then is evaluated on the frames so far (ATE, and
     # PSNR/SSIM/LPIPS on every `every`-th frame); one milestones.csv row each, outside the SLAM time and the
@@ -105,7 +106,7 @@ class RunConfig:
     save_maps: str = setting("final", "str", choices=SAVE_MAPS)
     # always a string: seq=00 and seq=10 behave alike; None = the dataset's default
     seq: str | None = setting(None, "seq", nullable=True)
-    # varies what a repeat should vary, nothing else (README: "Comparisons that hold")
+    # varies what a repeat should vary, nothing else (docs/results.md, "Comparisons that hold")
     seed: int = setting(0, "int", lo=0, hi=SEED_MAX)
     device: str = setting("auto", "str", pattern=r"auto|cpu|cuda(:\d+)?", hint="auto, cpu or cuda[:N]")
     # CPU threads (torch, numba, OpenCV): fixed, because sums split per thread round differently

@@ -22,7 +22,8 @@ def open_sequence(name: str, cfg: Mapping[str, Any]) -> FrameSequence:
     factory = registry.load(GROUP, "dataset", name, DatasetError)
     seq = factory(cfg)
     if not isinstance(seq, FrameSequence):
-        raise DatasetError(f"dataset plugin '{name}': expected a bench.datasets.Sequence, found {type(seq).__name__}")
+        found = type(seq).__name__
+        raise DatasetError(f"dataset plugin '{name}': expected a bench.datasets.FrameSequence, found {found}")
     return seq
 
 

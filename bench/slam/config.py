@@ -44,7 +44,7 @@ class SlamConfig:
     # where tracking starts: "velocity" extrapolates the last motion; "flow_pnp" (default) refines
     # that prediction with corners tracked since the previous frame and PnP on its depth
     # (bench/slam/frontend.py), falling back to "velocity" when too few corners survive. Why: see
-    # the README's "Known limits" (the velocity guess alone is lost on longer drives).
+    # reports/known_limits.md (the velocity guess alone is lost on longer drives).
     tracking_init: str = setting("flow_pnp", "str", choices=TRACKING_INITS)
     flow_pnp: FlowPnpConfig = field(default_factory=FlowPnpConfig)  # slam.flow_pnp.NAME=VALUE
     # tracking loss + this x the mean reprojection error (px, L1) of the corners flow + PnP matched (its
@@ -68,7 +68,7 @@ class SlamConfig:
     mapping_fresh_optimizer: bool = True  # new Adam moments per keyframe, as SplaTAM does
     # keyframes optimised together (current one included); None = all. Half the iterations go to the
     # current keyframe, the rest to a random other one of the window. A short window lets later
-    # close-ups overwrite the views of the early drive (figures in the README's "Known limits").
+    # close-ups overwrite the views of the early drive (figures in reports/known_limits.md).
     mapping_window: int | None = setting(None, "int", lo=1, nullable=True)
     # iterations over all keyframes once the drive is over (System.refine), timed apart from the
     # SLAM loop and not in fps; 0 = evaluate the map exactly as mapping left it

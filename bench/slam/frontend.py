@@ -3,7 +3,7 @@
 Why: photometric tracking of a forward-driving camera has a long, nearly flat valley along the
 optical axis (road and facades are parallel to the motion). A constant-velocity guess a few
 centimetres off can land in the wrong minimum, and the error then compounds from frame to
-frame until tracking is lost early in a drive (the runs: the README's "Known limits"). Corners tracked
+frame until tracking is lost early in a drive (the runs: reports/known_limits.md). Corners tracked
 between consecutive frames pin the forward motion independently of the map, so the photometric
 refinement starts inside the right basin. The constant-velocity prediction is still where the
 search starts: it seeds PnP's refinement, and it is the guess whenever too few corners survive.

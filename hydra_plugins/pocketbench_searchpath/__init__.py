@@ -4,7 +4,7 @@ Why: the package's configs travel inside the wheel (``pkg://bench.conf``), which
 edit; their own ``dataset/``, ``slam/``, ``experiment/`` and ``study/`` files (their KITTI root, a
 study) go in ``./conf/`` instead, as in lightning-hydra-template. A file there with the name of a
 shipped one replaces it; the run records which file each group choice came from
-(``bench.run.provenance.config_sources``). ``--config-dir DIR`` still adds DIR, after both.
+(``provenance.config_files``, from ``bench.run.lifecycle``). ``--config-dir DIR`` still adds DIR, after both.
 """
 
 from __future__ import annotations

@@ -109,7 +109,7 @@ def test_pose_round_trip(full, real):
     np.testing.assert_allclose(np.einsum("nji,njk->nik", R, R), np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
     np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-12)
     path = np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1).sum()
-    assert 7.0 < path < 8.0  # the README's 7.4 m
+    assert 7.0 < path < 8.0  # ../shared/data/README.md's 7.4 m
 
 
 def test_invalid_depth_is_zero_at_every_scale(copy):

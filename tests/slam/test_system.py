@@ -111,7 +111,8 @@ def test_depth_check_reads_a_metre_well_above_new_street(mapped_drive):
     _, depth = s.observe(seq[11])
     unmapped = float(((s.render(gt).alpha < 0.5) & (depth > 0)).float().mean())
     assert unmapped > 0.02, unmapped  # the frame does show street the map has not seen
-    try:  # at the true pose: ideally quiet, but it reads just above its threshold, so not asserted (README)
+    # at the true pose: ideally quiet, but it reads just above its threshold, so not asserted (docs/architecture.md)
+    try:
         _track_from(s, seq, 11, 0.0)
     except TrackingLost:
         pass
