@@ -6,7 +6,7 @@ that Gaussian not counted). It runs only when a strategy reads one of these stat
 the vectorised compositing (``compositing._forward``), which it leaves as it is: a scalar loop per
 pixel is slower but these statistics are taken once per prune, not per mapping iteration.
 
-Per pair it writes (then ``_reduce_extra`` sums over pairs in list order, so the result does not
+Per pair it writes (then ``_reduce_sum`` sums over pairs in list order, so the result does not
 depend on the threads): sum of alpha T and of o T over the tile's pixels (T before the Gaussian),
 the pixels where the Gaussian has the largest alpha T (front-most on ties) and the largest
 alpha T_after = alpha T (1 - alpha) (EfficientGS's code), and sum of (o dI/dalpha)^2 with I the
@@ -23,7 +23,7 @@ import torch
 from numba import njit, prange
 
 from bench.slam.raster_fused import threads as _threading_layer  # noqa: F401 - set before a parallel kernel runs
-from bench.slam.raster_fused.compositing import _exp, _tile_pixels
+from bench.slam.raster_fused.compositing import _exp, _reduce_sum, _tile_pixels
 from bench.slam.raster_fused.constants import _F, ALPHA_MAX, ALPHA_MIN, T_MIN
 
 # per-pair columns of ``pair``: weight_sum, opacity_t_sum, top1_count, top1_after_count, alpha_grad_sq
@@ -46,11 +46,15 @@ def _extra(gid, tile_start, m2, conic, opac, csum, width, height, tiles_x, bg_su
     for t in prange(n_tiles):
         x0, x1, y0, y1 = _tile_pixels(t, tiles_x, width, height)
         s, e = tile_start[t], tile_start[t + 1]
+        ks = np.empty(e - s, np.int64)  # a pixel's contributors (pair index), their alpha and T in front
+        al = np.empty(e - s, np.float32)
+        tb = np.empty(e - s, np.float32)
         for y in range(y0, y1):
             for x in range(x0, x1):
                 px, py = _F(x), _F(y)
                 T = _F(1.0)
                 col = _F(0.0)
+                n = 0
                 best_w, best_k = _F(0.0), -1
                 best_a, best_ka = _F(0.0), -1
                 for k in range(s, e):
@@ -70,37 +74,22 @@ def _extra(gid, tile_start, m2, conic, opac, csum, width, height, tiles_x, bg_su
                     if wa > best_a:
                         best_a, best_ka = wa, k
                     col += w * csum[g]
+                    ks[n], al[n], tb[n] = k, alpha, T
+                    n += 1
                     T = test_t
                 if best_k >= 0:
                     pair[best_k, P_TOP] += _F(1.0)
                 if best_ka >= 0:
                     pair[best_ka, P_TOPA] += _F(1.0)
-                if grad and best_k >= 0:
-                    t_final = T
-                    T = _F(1.0)
+                if grad:
                     front = _F(0.0)
-                    for k in range(s, e):
+                    for m in range(n):
+                        k = ks[m]
                         g = gid[k]
-                        raw, alpha = _alpha(px, py, m2, conic, opac, g)
-                        if raw < ALPHA_MIN:
-                            continue
-                        test_t = T * (_F(1.0) - alpha)
-                        if test_t < T_MIN:
-                            break
-                        front += alpha * T * csum[g]
-                        inv = _F(1.0) / (_F(1.0) - alpha)
-                        d = T * csum[g] - (col - front) * inv - t_final * bg_sum * inv
-                        v = opac[g] * d
+                        front += al[m] * tb[m] * csum[g]
+                        inv = _F(1.0) / (_F(1.0) - al[m])
+                        v = opac[g] * (tb[m] * csum[g] - (col - front) * inv - T * bg_sum * inv)
                         pair[k, P_G2] += v * v
-                        T = test_t
-
-
-@njit(cache=True)
-def _reduce_extra(gid, pair, out):  # pragma: no cover - compiled
-    for k in range(gid.shape[0]):
-        g = gid[k]
-        for j in range(pair.shape[1]):
-            out[g, j] += pair[k, j]
 
 
 def extra_stats(means2d: torch.Tensor, conic: torch.Tensor, opac: torch.Tensor, colors: torch.Tensor,
@@ -116,5 +105,5 @@ def extra_stats(means2d: torch.Tensor, conic: torch.Tensor, opac: torch.Tensor, 
     out = torch.zeros(m2.shape[0], N_PAIR, dtype=torch.float32)
     _extra(gid.numpy(), tile_start.numpy(), m2, co, op, cs, width, height, tiles_x, np.float32(bg_sum), grad,
            pair.numpy())
-    _reduce_extra(gid.numpy(), pair.numpy(), out.numpy())
+    _reduce_sum(gid.numpy(), pair.numpy(), out.numpy())
     return out
