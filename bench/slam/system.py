@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from bench.datasets.base import Frame
-from bench.errors import StrategyError
+from bench.errors import ConfigError, StrategyError
 from bench.slam.config import SlamConfig
 from bench.slam.frontend import to_gray_u8
 from bench.slam.gaussians import GaussianMap
@@ -25,7 +25,7 @@ from bench.slam.keyframes import Keyframe, torch_owned
 from bench.slam.lost import LostDetector
 from bench.slam.mapping import Mapping
 from bench.slam.prune_diagnostics import PruneDiagnostics
-from bench.slam.raster import RasterOutput, rasterize
+from bench.slam.raster import EXTRA_STATS, RasterOutput, rasterize, resolve_backend
 from bench.slam.se3 import inverse, so3_log
 from bench.slam.strategy import (
     READS_MAPPING_GRAD2D,
@@ -89,7 +89,12 @@ class System(Tracking, Mapping, PruneDiagnostics):
         self.map.state["_track_grad_n"] = torch.empty(0, device=device)
         # sum of ||dL/d means2d|| over the mapping iterations that rendered a Gaussian, and those iterations
         # (3DGS's xyz_gradient_accum and denom), kept only for a strategy that reads them
-        self._map_grad2d = READS_MAPPING_GRAD2D in getattr(strategy, "reads", ())
+        reads = frozenset(getattr(strategy, "reads", ()))
+        self._map_grad2d = READS_MAPPING_GRAD2D in reads
+        if reads & set(EXTRA_STATS) and resolve_backend(cfg.raster_backend, device) == "gsplat":
+            # said at the start, not at the first prune
+            raise ConfigError(f"slam.raster_backend=gsplat: statistics {', '.join(sorted(reads & set(EXTRA_STATS)))} "
+                              "that the strategy reads are not implemented there (use slam.raster_backend=torch)")
         if self._map_grad2d:
             self.map.state["_map_grad2d_sum"] = torch.empty(0, device=device)
             self.map.state["_map_grad2d_n"] = torch.empty(0, device=device)
