@@ -17,8 +17,10 @@ from __future__ import annotations
 from bench.config.settings import setting
 from bench.errors import ConfigError, StrategyError
 from bench.slam.gaussians import GaussianMap, ParamSpec
-from bench.slam.raster import TILE_PX, RasterOutput
+from bench.slam.raster import EXTRA_STATS, TILE_PX, RasterOutput
 from bench.slam.strategy import (
+    READS_MAPPING_GRAD2D,
+    SCORE_VIEWS,
     MappingContext,
     PruneConfig,
     PruneContext,
@@ -31,6 +33,9 @@ from bench.slam.strategy import (
 )
 
 __all__ = [
+    "EXTRA_STATS",
+    "READS_MAPPING_GRAD2D",
+    "SCORE_VIEWS",
     "TILE_PX",
     "ConfigError",
     "GaussianMap",

@@ -84,6 +84,9 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
           "at the pruning pose (holes)"),
     Field("n_reseeded_holes", "", "Gaussians this keyframe seeded in pixels the prunes since the previous "
           "keyframe opened (their surface points, from the observed depth, projected into this view)"),
+    Field("n_score_views", "", "views the keyframe's prune rendered to score the map (`PruneContext.render_views`; "
+          "the criteria with `score_views`); null for a strategy that scores from the pruning render alone"),
+    Field("score_views", "", "their keyframe indices, as ranges (`0-3;5`); null as above", "text"),
     Field("diag_s", "s", "time spent on the pruning diagnostics above (included in `prune_s`)"),
     # how well mapping fitted the keyframe it just mapped (bench/slam/prune_diagnostics.py:_fit_diagnostics)
     Field("kf_psnr_db", "dB", "the keyframe's own render right after its mapping, before pruning: PSNR, whole image"),
@@ -110,6 +113,7 @@ MILESTONE_FIELDS: tuple[Field, ...] = (
 MILESTONE_COLUMNS: list[str] = [f.name for f in MILESTONE_FIELDS]
 MEMORY_PART_COLUMNS: tuple[str, ...] = ("mem_state_mib", "mem_keyframes_mib", "mem_other_mib", "mem_work_mib")
 PRUNE_COUNT_COLUMNS: tuple[str, ...] = ("n_redundant", "n_pruned_redundant", "n_hole_px", "n_reseeded_holes")
+SCORE_VIEW_COLUMNS: tuple[str, ...] = ("n_score_views", "score_views")
 PRUNE_QUARTILE_COLUMNS: tuple[str, ...] = (
     "cand_cov_q1", "cand_cov_q2", "cand_cov_q3", "cand_w_q1", "cand_w_q2", "cand_w_q3",
 )  # fmt: skip

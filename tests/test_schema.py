@@ -56,3 +56,12 @@ def test_report_reads_the_column_the_writer_named():
         run = pd.Series({"peak_mem_source": source})
         assert peak_column(run, kf) == (column if column in kf.columns else None)
     assert peak_column(pd.Series({"peak_mem_source": None}), kf) is None
+
+
+def test_score_view_columns_are_keyframe_fields():
+    from bench.slam.system import index_ranges
+
+    assert set(schema.SCORE_VIEW_COLUMNS) <= set(schema.KEYFRAME_COLUMNS)
+    kinds = {f.name: f.kind for f in schema.KEYFRAME_FIELDS}
+    assert kinds["n_score_views"] == "number" and kinds["score_views"] == "text"
+    assert index_ranges([0, 1, 2, 3, 5, 7, 8, 9]) == "0-3;5;7-9" and index_ranges([4]) == "4"

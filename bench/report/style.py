@@ -22,7 +22,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from bench.report.names import STRATEGY_ORDER, method_name
+from bench.report.names import LITERATURE, STRATEGY_ORDER, method_name
 from bench.report.tables import Variant
 
 MAX_SERIES = 7
@@ -35,6 +35,13 @@ COLOURS: dict[str, str] = {
     "opacity": "#0072B2",  # blue
     "gradient": "#009E73",  # bluish green
     "mask": "#CC79A7",  # reddish purple
+    # the literature criteria (their own panel): Paul Tol's muted scheme, also colour-blind-safe
+    "lightgaussian": "#332288",  # indigo
+    "radsplat": "#88CCEE",  # cyan
+    "minisplatting": "#44AA99",  # teal
+    "efficientgs": "#117733",  # green
+    "speedysplat": "#999933",  # olive
+    "trimfat": "#882255",  # wine
 }
 EXTRA_COLOURS: tuple[str, ...] = ("#56B4E9", "#F0E442", "#8C564B", "#7F7F7F")
 RATIO_STYLES: tuple[tuple[str | tuple, str], ...] = (
@@ -84,13 +91,25 @@ def panel_groups(found: Sequence[Variant]) -> list[Panel]:
         usual = ratios.most_common(1)[0][0] if ratios else None
         main = [v for v in mine if per_strategy[v.strategy] == 1 or v.keep_ratio in (usual, None)]
         title = _preset_title(preset, several)
-        panels += _cut(title, main, preset, usual)
+        panels += _families(title, main, preset, usual)
         for strategy in [s for s, n in per_strategy.items() if n > 1]:
             swept = [v for v in mine if v.strategy == strategy]
             base = [v for v in mine if v.strategy == BASELINE and strategy != BASELINE]
             sweep_title = (f"{title}:\n" if title else "") + f"{method_name(strategy)} by keep ratio"
             panels += _cut(sweep_title, base + swept, preset, usual)
     return panels
+
+
+def _families(title: str, variants: list[Variant], preset: str, usual: float | None) -> list[Panel]:
+    """The paper's methods and the literature criteria (``names.LITERATURE``) in panels of their own, each
+    with the baseline, when both ran; else one group."""
+    lit = [v for v in variants if v.strategy in LITERATURE]
+    if not lit or len(lit) == len([v for v in variants if v.strategy != BASELINE]):
+        return _cut(title, variants, preset, usual)
+    base = [v for v in variants if v.strategy == BASELINE]
+    paper = [v for v in variants if v.strategy not in LITERATURE]
+    head = f"{title}: " if title else ""
+    return _cut(f"{head}paper's methods", paper, preset, usual) + _cut(f"{head}literature", base + lit, preset, usual)
 
 
 def _cut(title: str, variants: list[Variant], preset: str, usual: float | None) -> list[Panel]:

@@ -248,6 +248,7 @@ def keyframe_row(parts: RunSetup, res: FrameResult, frame_index: int, between: d
                        system.keyframe_store_bytes()),
         **{k: _round(diag.get(k)) for k in schema.PRUNE_QUARTILE_COLUMNS},
         **{k: diag.get(k, 0) + between[k] for k in schema.PRUNE_COUNT_COLUMNS},
+        **{k: diag.get(k) for k in schema.SCORE_VIEW_COLUMNS},
         "diag_s": round(res.diag_s + between["diag_s"], 4),
         **{k: _round(diag.get(k)) for k in schema.FIT_COLUMNS},
     }

@@ -111,6 +111,8 @@ class Mapping:
         for it in range(iters):
             kf = pick(it)
             out = self.render(kf.w2c, training=True, iteration=it)
+            if self._map_grad2d and out.means2d.requires_grad:
+                out.means2d.retain_grad()
             color = (out.color - kf.rgb).abs().mean()
             if cfg.lambda_ssim_map > 0:
                 color = (1 - cfg.lambda_ssim_map) * color + cfg.lambda_ssim_map * dssim(out.color, kf.rgb)
@@ -120,5 +122,9 @@ class Mapping:
                 loss = loss + extra
             opt.zero_grad(set_to_none=True)
             loss.backward()
+            if self._map_grad2d and out.means2d.grad is not None:
+                seen = (out.radius_px > 0).float()  # [N]
+                self.map.state["_map_grad2d_sum"] += out.means2d.grad.detach().norm(dim=-1) * seen
+                self.map.state["_map_grad2d_n"] += seen
             opt.step()
         opt.zero_grad(set_to_none=True)

@@ -50,6 +50,31 @@ class RasterOutput:
     coverage: torch.Tensor | None  # [N] C_i = sum_p o_i exp(-d^T S'^-1 d / 2) over the image (stats=True)
     hit_count: torch.Tensor | None  # [N] pixels the Gaussian contributed to (stats=True)
     max_weight: torch.Tensor | None  # [N] max blending weight alpha*T over pixels (stats=True)
+    # the pruning criteria's statistics, [N] each, computed only when ``rasterize(extra=...)`` names them
+    # (EXTRA_STATS); T is the transmittance in front of the Gaussian, sums and counts run over the image
+    weight_sum: torch.Tensor | None = None  # "weight_sum": sum alpha*T (Mini-Splatting)
+    opacity_t_sum: torch.Tensor | None = None  # "weight_sum": sum o*T (LightGaussian's newest rasterizer)
+    top1_count: torch.Tensor | None = None  # "top1": pixels whose largest alpha*T is this Gaussian's
+    top1_after_count: torch.Tensor | None = None  # "top1": the same by alpha*T*(1 - alpha) (EfficientGS's code)
+    alpha_grad_sq: torch.Tensor | None = None  # "alpha_grad_sq": sum (o dI/dalpha)^2, I the channel-summed image
+
+
+# what ``rasterize(extra=...)`` may ask for, and the RasterOutput fields each one fills
+EXTRA_STATS: dict[str, tuple[str, ...]] = {
+    "weight_sum": ("weight_sum", "opacity_t_sum"),
+    "top1": ("top1_count", "top1_after_count"),
+    "alpha_grad_sq": ("alpha_grad_sq",),
+}
+
+
+def check_extra(extra) -> frozenset[str]:
+    """``extra`` as a set, or a one-line ConfigError naming what is not a statistic."""
+    extra = frozenset(extra or ())
+    unknown = sorted(extra - set(EXTRA_STATS))
+    if unknown:
+        raise ConfigError(f"rasterize extra statistics: expected among {', '.join(EXTRA_STATS)}, found "
+                          f"{', '.join(unknown)}")
+    return extra
 
 
 def covariance3d(log_scales: torch.Tensor, quats: torch.Tensor) -> torch.Tensor:
@@ -229,6 +254,7 @@ def rasterize(
     stats: bool = False,
     depth_far_m: float | None = None,
     backend: str = "auto",
+    extra: frozenset[str] | tuple[str, ...] = (),
 ) -> RasterOutput:
     """Render Gaussians (world frame) through camera ``w2c`` [4, 4] with intrinsics ``K`` [3, 3].
 
@@ -241,22 +267,29 @@ def rasterize(
     or ``auto`` (see ``resolve_backend``). ``torch`` and ``fused`` return the same outputs and
     gradients up to float32 rounding; ``gsplat`` follows gsplat's footprint and clamp conventions
     (its module docstring lists them).
+
+    ``extra``: the pruning criteria's statistics to compute besides (``EXTRA_STATS``; forward only,
+    without gradient); none by default, so a run whose strategy reads none never pays for them.
     """
+    extra = check_extra(extra)
     backend = resolve_backend(backend, means.device)
     bg = torch.zeros(3, device=means.device, dtype=means.dtype) if background is None else background
     if backend == "gsplat":
         from bench.slam.raster_gsplat import rasterize_gsplat
 
+        if extra:
+            raise ConfigError(f"slam.raster_backend=gsplat: statistics {', '.join(sorted(extra))} are not "
+                              "implemented there (use slam.raster_backend=torch)")
         z = means @ w2c[2, :3] + w2c[2, 3]  # [N] camera z of every Gaussian
         return RasterOutput(**rasterize_gsplat(means, log_scales, quats, opacities, colors, z,
                                                _paint_depth(z, depth_far_m), w2c, K, width, height, bg, near_m,
                                                stats))
     if backend == "fused":
         ff = _front_fused(means, log_scales, quats, w2c, K, width, height, near_m)
-        return _render_fused(ff, opacities, colors, depth_far_m, bg, width, height, stats)
+        return _render_fused(ff, opacities, colors, depth_far_m, bg, width, height, stats, extra)
     fr = _front(means, log_scales, quats, w2c, K, width, height, near_m)
     z_paint = _paint_depth(fr.z, depth_far_m)
-    return _render_torch(fr, opacities, colors, z_paint, bg, width, height, stats)
+    return _render_torch(fr, opacities, colors, z_paint, bg, width, height, stats, extra)
 
 
 def _paint_depth(z: torch.Tensor, depth_far_m: float | None) -> torch.Tensor:
@@ -264,7 +297,8 @@ def _paint_depth(z: torch.Tensor, depth_far_m: float | None) -> torch.Tensor:
     return z if depth_far_m is None else torch.where(z < depth_far_m, z, torch.zeros_like(z))
 
 
-def _render_fused(ff: _FusedFront, opacities, colors, depth_far_m, bg, width, height, stats) -> RasterOutput:
+def _render_fused(ff: _FusedFront, opacities, colors, depth_far_m, bg, width, height, stats,
+                  extra=frozenset()) -> RasterOutput:
     from bench.slam import raster_fused  # numba compiles on first use; the torch backend never needs it
 
     n_tiles = ff.tiles_x * ff.tiles_y
@@ -283,9 +317,24 @@ def _render_fused(ff: _FusedFront, opacities, colors, depth_far_m, bg, width, he
             gid, tile_start, width, height, ff.tiles_x, stats)
         if stats:
             coverage[vis], hit_count[vis], max_weight[vis] = cov_v, hits_v, maxw_v
+        if extra:
+            from bench.slam.raster_fused.criteria_stats import extra_stats
+
+            ex = torch.zeros(n, 5)
+            ex[vis] = extra_stats(ff.means2d.index_select(0, vis), inv, opacities.index_select(0, vis),
+                                  colors.index_select(0, vis), gid, tile_start, width, height, ff.tiles_x,
+                                  float(bg.sum()), "alpha_grad_sq" in extra)
     else:  # nothing in view: constant images that carry no gradient, as the torch backend returns
         acc, t_final = torch.zeros(width * height, 4), torch.ones(width * height)
     dtype = colors.dtype
+    if extra and not gid.numel():
+        ex = torch.zeros(n, 5)
+    ext = {}
+    if extra:
+        cols = {"weight_sum": ex[:, 0], "opacity_t_sum": ex[:, 1], "top1_count": ex[:, 2].round().long(),
+                "top1_after_count": ex[:, 3].round().long(), "alpha_grad_sq": ex[:, 4]}
+        ext = {f: cols[f] if cols[f].dtype == torch.int64 else cols[f].to(dtype)
+               for name in extra for f in EXTRA_STATS[name]}
     return RasterOutput(
         color=(acc[:, :3] + t_final[:, None] * bg).to(dtype).reshape(height, width, 3),
         depth=acc[:, 3].to(dtype).reshape(height, width),
@@ -299,10 +348,11 @@ def _render_fused(ff: _FusedFront, opacities, colors, depth_far_m, bg, width, he
         coverage=coverage.to(dtype) if stats else None,
         hit_count=hit_count if stats else None,
         max_weight=max_weight.to(dtype) if stats else None,
+        **ext,
     )
 
 
-def _render_torch(fr: _Front, opacities, colors, z_paint, bg, width, height, stats) -> RasterOutput:
+def _render_torch(fr: _Front, opacities, colors, z_paint, bg, width, height, stats, extra=frozenset()) -> RasterOutput:
     means2d, conic, z, counts = fr.means2d, fr.conic, fr.z, fr.counts
     tiles_x, tiles_y = fr.tiles_x, fr.tiles_y
     n_tiles = tiles_x * tiles_y
@@ -345,6 +395,11 @@ def _render_torch(fr: _Front, opacities, colors, z_paint, bg, width, height, sta
     coverage = torch.zeros(N, device=device, dtype=dtype) if stats else None
     hit_count = torch.zeros(N, device=device, dtype=torch.long) if stats else None
     max_weight = torch.zeros(N, device=device, dtype=dtype) if stats else None
+    ext = {f: torch.zeros(N, device=device, dtype=dtype) for name in extra for f in EXTRA_STATS[name]}
+    for f in ("top1_count", "top1_after_count"):
+        if f in ext:
+            ext[f] = ext[f].long()
+    csum_ext = torch.cat([colors.sum(-1), colors.new_zeros(1)]).detach()  # [N+1] channel sum of each colour
 
     # Sentinel Gaussian at index N: zero opacity, used for padding.
     m2_ext = torch.cat([means2d, means2d.new_zeros(1, 2)])
@@ -422,6 +477,11 @@ def _render_torch(fr: _Front, opacities, colors, z_paint, bg, width, height, sta
                 hits = (keep & (valid_pix > 0)).reshape(-1)
                 hit_count.index_add_(0, flat_g[hits], torch.ones_like(flat_g[hits]))
                 max_weight.scatter_reduce_(0, flat_g[hits], w.detach().reshape(-1)[hits], reduce="amax")
+        if extra:
+            with torch.no_grad():
+                _extra_torch(ext, extra, gidx, keep & pix_valid[tiles][:, :, None], w.detach(), alpha.detach(),
+                             log_t.detach(), log1m.detach(), torch.exp(log_op_ext[gidx]).detach(),
+                             csum_ext[gidx], float(bg.sum()), N)
 
     # tiles with no Gaussians show the background
     empty = (per_tile == 0).nonzero().flatten()
@@ -448,4 +508,33 @@ def _render_torch(fr: _Front, opacities, colors, z_paint, bg, width, height, sta
         coverage=coverage,
         hit_count=hit_count,
         max_weight=max_weight,
+        **ext,
     )
+
+
+def _extra_torch(ext, extra, gidx, use, w, alpha, log_t, log1m, o, csum, bg_sum, N) -> None:
+    """The ``extra`` statistics of one block of tiles added into ``ext`` (the reference for
+    ``raster_fused/criteria_stats.py``). gidx [t, K]; use, w, alpha, log_t, log1m [t, 256, K] (use: the
+    pair is blended at a pixel of the image); o, csum [t, K]."""
+    t, P, K = w.shape
+    g = gidx[:, None, :].expand(t, P, K)
+    w = torch.where(use, w, 0.0)
+    t_before = torch.exp(log_t - log1m)  # [t, 256, K]
+    if "weight_sum" in extra:
+        ext["weight_sum"].index_add_(0, g[use], w[use])
+        ext["opacity_t_sum"].index_add_(0, g[use], (o[:, None, :] * t_before)[use])
+    if "top1" in extra:
+        for field, wt in (("top1_count", w), ("top1_after_count", torch.where(use, alpha * torch.exp(log_t), 0.0))):
+            best, k = wt.max(-1)  # [t, 256]: the first (front-most) of equal maxima
+            has = best > 0
+            winner = torch.gather(gidx, 1, k.reshape(t, -1)).reshape(t, P)[has]
+            ext[field].index_add_(0, winner, torch.ones_like(winner))
+    if "alpha_grad_sq" in extra:
+        cw = w * csum[:, None, :]  # [t, 256, K]
+        front = torch.cumsum(cw, -1)  # colour of the Gaussians up to and including each one
+        col = front[..., -1:]
+        t_final = torch.exp(log_t[..., -1:])
+        inv = 1.0 / (1.0 - alpha)
+        d = t_before * csum[:, None, :] - (col - front) * inv - t_final * bg_sum * inv
+        v = (o[:, None, :] * d) ** 2
+        ext["alpha_grad_sq"].index_add_(0, g[use], v[use])

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import torch
@@ -21,7 +21,7 @@ from bench.config import plugins as registry
 from bench.config.settings import check_rules, check_types, setting
 from bench.errors import ConfigError, StrategyError
 from bench.slam.gaussians import GaussianMap, ParamSpec
-from bench.slam.raster import RasterOutput
+from bench.slam.raster import EXTRA_STATS, RasterOutput
 
 GROUP = "pocketbench.strategies"
 
@@ -63,6 +63,28 @@ class PruneContext:
     keep_ratio: float  # fraction of candidates to keep (shared by all strategies)
     image_hw: tuple[int, int]
     target_count: int | None = None  # prune.target=absolute: N_tar as a fixed count, not a ratio
+    # the core's renderer of scoring views: (which, extra) -> (keyframe index, render) per view; see render_views
+    renderer: Callable[[str, frozenset[str]], Iterator[tuple[int, RasterOutput]]] | None = None
+    # keyframe indices of the views render_views gave this prune (keyframes.csv: n_score_views, score_views)
+    views_used: list[int] = field(default_factory=list)
+    # (sum of ||dL/d means2d|| px over the mapping iterations that rendered the Gaussian, those iterations)
+    # [N] each, since the Gaussian was added; filled only for a strategy that reads "mapping_grad2d"
+    mapping_grad2d: tuple[torch.Tensor, torch.Tensor] | None = None
+    seed: int = 0  # the run's seed (slam.seed), for a strategy that draws at random
+
+    def render_views(
+        self, which: str, extra: frozenset[str] | tuple[str, ...] = ()
+    ) -> Iterator[tuple[int, RasterOutput]]:
+        """(keyframe index, stats=True render with the ``extra`` statistics) per scoring view, with the
+        current map and the keyframes' poses, no gradient: ``which`` is ``held_keyframes`` (every keyframe
+        the system holds, the new one included), ``window`` (the mapping window) or ``current`` (the new
+        keyframe). Each view is rendered as it is reached, so one at a time is held; the views go to
+        keyframes.csv."""
+        if self.renderer is None:
+            raise StrategyError("expected a PruneContext with a renderer of scoring views, found none")
+        for kf, out in self.renderer(which, frozenset(extra)):
+            self.views_used.append(kf)
+            yield kf, out
 
     @property
     def n_target(self) -> int:
@@ -72,6 +94,8 @@ class PruneContext:
         return int(math.ceil(self.keep_ratio * int(self.candidates.sum())))
 
 
+READS_MAPPING_GRAD2D = "mapping_grad2d"
+SCORE_VIEWS: tuple[str, ...] = ("held_keyframes", "window", "current")  # what PruneContext.render_views takes
 PRUNE_TARGETS: tuple[str, ...] = ("ratio", "absolute")
 PRUNE_EVERY: tuple[str, ...] = ("keyframe", "frame")
 GRAD_SOURCES: tuple[str, ...] = ("params_last", "means2d_all")
@@ -118,6 +142,9 @@ class Strategy:
     """Base class: every hook is a no-op, so ``none`` is the empty subclass."""
 
     description: ClassVar[str] = ""
+    # what the strategy reads that the core computes only on request: names of raster.EXTRA_STATS
+    # (asked of PruneContext.render_views) and "mapping_grad2d" (PruneContext.mapping_grad2d)
+    reads: ClassVar[frozenset[str]] = frozenset()
 
     def __post_init__(self) -> None:
         """Every field declared with ``setting`` checked as the strategy is built: a bad value is one
@@ -193,6 +220,11 @@ class CheckedStrategy(Strategy):
     def __init__(self, strategy: Strategy, name: str) -> None:
         self.inner, self.name = strategy, name
         self.description = strategy.description
+        self.reads = frozenset(strategy.reads)
+        unknown = sorted(self.reads - set(EXTRA_STATS) - {READS_MAPPING_GRAD2D})
+        if unknown:
+            raise StrategyError(f"strategy '{name}' reads: expected among "
+                                f"{', '.join([*EXTRA_STATS, READS_MAPPING_GRAD2D])}, found {', '.join(unknown)}")
 
     def _fail(self, hook: str, expected: str, found: str) -> StrategyError:
         return StrategyError(f"strategy '{self.name}' {hook}: expected {expected}, found {found}")

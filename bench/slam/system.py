@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from bench.datasets.base import Frame
+from bench.errors import ConfigError, StrategyError
 from bench.slam.config import SlamConfig
 from bench.slam.frontend import to_gray_u8
 from bench.slam.gaussians import GaussianMap
@@ -24,9 +25,16 @@ from bench.slam.keyframes import Keyframe, torch_owned
 from bench.slam.lost import LostDetector
 from bench.slam.mapping import Mapping
 from bench.slam.prune_diagnostics import PruneDiagnostics
-from bench.slam.raster import RasterOutput, rasterize
+from bench.slam.raster import EXTRA_STATS, RasterOutput, rasterize, resolve_backend
 from bench.slam.se3 import inverse, so3_log
-from bench.slam.strategy import MappingContext, PruneConfig, PruneContext, Strategy
+from bench.slam.strategy import (
+    READS_MAPPING_GRAD2D,
+    SCORE_VIEWS,
+    MappingContext,
+    PruneConfig,
+    PruneContext,
+    Strategy,
+)
 from bench.slam.tracking import Tracking
 
 
@@ -79,6 +87,17 @@ class System(Tracking, Mapping, PruneDiagnostics):
                                state_dtypes=strategy.state_spec())
         self.map.state["_track_grad_sum"] = torch.empty(0, device=device)
         self.map.state["_track_grad_n"] = torch.empty(0, device=device)
+        # sum of ||dL/d means2d|| over the mapping iterations that rendered a Gaussian, and those iterations
+        # (3DGS's xyz_gradient_accum and denom), kept only for a strategy that reads them
+        reads = frozenset(getattr(strategy, "reads", ()))
+        self._map_grad2d = READS_MAPPING_GRAD2D in reads
+        if reads & set(EXTRA_STATS) and resolve_backend(cfg.raster_backend, device) == "gsplat":
+            # said at the start, not at the first prune
+            raise ConfigError(f"slam.raster_backend=gsplat: statistics {', '.join(sorted(reads & set(EXTRA_STATS)))} "
+                              "that the strategy reads are not implemented there (use slam.raster_backend=torch)")
+        if self._map_grad2d:
+            self.map.state["_map_grad2d_sum"] = torch.empty(0, device=device)
+            self.map.state["_map_grad2d_n"] = torch.empty(0, device=device)
         self.keyframes: list[Keyframe] = []
         self.poses: list[torch.Tensor] = []  # w2c per processed frame
         self.frames_since_kf = 0
@@ -108,7 +127,8 @@ class System(Tracking, Mapping, PruneDiagnostics):
         self.track_log: list[tuple[int, float, float, float]] = []
 
     def render(
-        self, w2c: torch.Tensor, stats: bool = False, training: bool = False, iteration: int = 0
+        self, w2c: torch.Tensor, stats: bool = False, training: bool = False, iteration: int = 0,
+        extra: frozenset[str] = frozenset(),
     ) -> RasterOutput:
         g = self.map
         op = g.opacities
@@ -116,7 +136,7 @@ class System(Tracking, Mapping, PruneDiagnostics):
         if mask is not None:
             op = op * mask
         return rasterize(g.means, g.log_scales, g.quats, op, g.colors, w2c, self.K, self.W, self.H, stats=stats,
-                         depth_far_m=self.cfg.depth_far_m, backend=self.cfg.raster_backend)
+                         depth_far_m=self.cfg.depth_far_m, backend=self.cfg.raster_backend, extra=extra)
 
     def _phase(self, name: str):
         return self._timer.phase(name) if self._timer is not None else contextlib.nullcontext()
@@ -264,9 +284,14 @@ class System(Tracking, Mapping, PruneDiagnostics):
         grad_mean = st["_track_grad_sum"] / st["_track_grad_n"].clamp_min(1)
         is_new = self.map.birth_kf == kf_idx
         candidates = (out.tile_id >= 0) & ~is_new
+        grad2d = (st["_map_grad2d_sum"], st["_map_grad2d_n"]) if self._map_grad2d else None
         ctx = PruneContext(kf_idx, self.map, st, out, grad_mean, is_new, candidates, self.keep_ratio,
-                           (self.H, self.W), self.prune.target_count)
+                           (self.H, self.W), self.prune.target_count, renderer=self._score_views,
+                           mapping_grad2d=grad2d, seed=self.cfg.seed)
         keep = self.strategy.after_mapping(ctx)
+        if result is not None and ctx.views_used:
+            result.diag["n_score_views"] = len(ctx.views_used)
+            result.diag["score_views"] = index_ranges(ctx.views_used)
         st["_track_grad_sum"].zero_()
         st["_track_grad_n"].zero_()
         n_candidates = int(candidates.sum())
@@ -281,9 +306,34 @@ class System(Tracking, Mapping, PruneDiagnostics):
             result.diag_s += time.perf_counter() - t0
         return n_removed, n_candidates
 
+    def _score_views(self, which: str, extra: frozenset[str]):
+        """PruneContext.render_views: (keyframe index, render) of each view ``which`` selects."""
+        if which not in SCORE_VIEWS:
+            raise StrategyError(f"score views: expected one of {', '.join(SCORE_VIEWS)}, found {which!r}")
+        held = list(enumerate(self.keyframes))
+        if which == "window":  # the views mapping optimises over (bench.slam.mapping._map)
+            held = held[::-1][: self.cfg.mapping_window or len(held)][::-1]
+        elif which == "current":
+            held = held[-1:]
+        for i, kf in held:
+            with torch.no_grad():
+                out = self.render(kf.w2c, stats=True, extra=extra)
+            yield i, out
+
     def keyframe_store_bytes(self) -> int:
         """Exact bytes of the keyframe store: every keyframe's colour, depth and pose."""
         return int(sum(t.numel() * t.element_size() for kf in self.keyframes for t in (kf.rgb, kf.depth, kf.w2c)))
+
+
+def index_ranges(indices: list[int]) -> str:
+    """Sorted indices as ranges, "0-3;5;7-9" (keyframes.csv ``score_views``)."""
+    parts: list[str] = []
+    for i in sorted(set(indices)):
+        if parts and parts[-1][1] == i - 1:
+            parts[-1][1] = i
+        else:
+            parts.append([i, i])
+    return ";".join(f"{a}" if a == b else f"{a}-{b}" for a, b in parts)
 
 
 def _stack(mats: list[torch.Tensor]) -> torch.Tensor:

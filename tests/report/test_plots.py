@@ -167,3 +167,15 @@ def test_pruned_figure_puts_strategies_on_their_last_common_keyframe(tmp_path: P
         _pruned_npz(pocket, kf, 7)
     written = make_plots(collect([tmp_path / "sweep"]).runs, tmp_path / "out", lambda w: None)
     assert [p.name for p in written if p.name.startswith("pruned_")] == ["pruned_kitti_00_kf010.png"]
+
+
+def test_literature_criteria_get_a_panel_of_their_own() -> None:
+    from bench.report.names import LITERATURE
+
+    paper = ("none", "pocket", "area", "opacity", "gradient", "mask")
+    found = [Variant(s, 0.4, s, "default") for s in (*paper, *LITERATURE)]
+    panels = panel_groups(found)
+    assert [p.title for p in panels] == ["paper's methods", "literature"]
+    assert {v.strategy for v in panels[1].variants} == {"none", *LITERATURE}
+    assert all(len(p.variants) <= MAX_SERIES for p in panels)
+    assert len(panel_groups([Variant(s, 0.4, s, "default") for s in ("none", *LITERATURE)])) == 1

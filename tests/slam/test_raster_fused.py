@@ -313,3 +313,31 @@ def test_a_process_that_compiles_the_kernels_repeats_one_that_loads_them(tmp_pat
     assert first[0].abs().max() > 0 and first[3].abs().max() > 0
     for a, b in zip(first, second, strict=True):
         assert torch.equal(a, b)
+
+
+@pytest.mark.parametrize("W,H,seed", [(40, 32, 0), (33, 17, 1)])
+def test_criteria_statistics_match_torch(W, H, seed):
+    """The pruning criteria's statistics (rasterize(extra=...)): fused against the torch reference."""
+    *params, _ = scene(seed=seed)
+    K = torch.tensor([[0.75 * W, 0, W / 2 - 0.5], [0, 0.75 * W, H / 2 - 0.5], [0, 0, 1]])
+    extra = ("weight_sum", "top1", "alpha_grad_sq")
+    ref, got = both(params, K, W, H, stats=True, extra=extra, background=torch.tensor([0.1, 0.2, 0.3]))
+    for f in ("weight_sum", "opacity_t_sum", "alpha_grad_sq"):
+        torch.testing.assert_close(getattr(got, f), getattr(ref, f), atol=5e-4, rtol=1e-4, msg=f)
+    for f in ("top1_count", "top1_after_count"):  # one per pixel with a contributor; a near-tie may flip
+        assert getattr(got, f).dtype == torch.int64
+        assert (getattr(got, f) - getattr(ref, f)).abs().sum() <= 2, f
+        assert int(getattr(ref, f).sum()) == int((ref.alpha > 0).sum())
+    assert ref.weight_sum.sum() > 1 and ref.alpha_grad_sq.sum() > 1
+
+
+def test_criteria_statistics_only_when_asked():
+    *params, _ = scene()
+    W, H = 40, 32
+    K = torch.tensor([[30.0, 0, 19.5], [0, 30.0, 15.5], [0, 0, 1]])
+    for out in both(params, K, W, H, stats=True, extra=("top1",)):
+        assert out.top1_count is not None and out.weight_sum is None and out.alpha_grad_sq is None
+    for out in both(params, K, W, H, stats=True):
+        assert out.top1_count is None and out.weight_sum is None
+    with pytest.raises(ConfigError, match="expected among weight_sum, top1, alpha_grad_sq, found nope"):
+        rasterize(*params, se3_exp(POSE), K, W, H, extra=("nope",))

@@ -154,3 +154,15 @@ def test_gsplat_nothing_in_view_on_cuda():
     w2c = torch.diag(torch.tensor([1.0, 1.0, -1.0, 1.0], device=dev))
     out = rasterize(*params, w2c, K, 32, 32, stats=True, backend="gsplat")
     assert (out.alpha == 0).all() and (out.radius_px == 0).all() and out.hit_count.sum() == 0
+
+
+def test_criteria_statistics_on_gsplat_are_one_config_error(monkeypatch):
+    """The pruning criteria's statistics (rasterize(extra=...)) exist in the torch and fused backends only."""
+    from bench.slam import raster
+
+    monkeypatch.setattr(raster, "resolve_backend", lambda backend, device: "gsplat")
+    n = 4
+    with pytest.raises(ConfigError, match=r"^slam.raster_backend=gsplat: statistics top1, weight_sum are not "):
+        raster.rasterize(torch.rand(n, 3) + 2, torch.full((n, 3), -3.0), torch.tensor([1.0, 0, 0, 0]).repeat(n, 1),
+                         torch.full((n,), 0.5), torch.rand(n, 3), torch.eye(4), torch.eye(3), 8, 8,
+                         extra=("weight_sum", "top1"))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import subprocess
 import sys
 import textwrap
 from pathlib import Path
@@ -15,7 +16,8 @@ from bench.errors import ConfigError, StrategyError
 from bench.slam import strategy as bench_strategy
 from bench.slam.strategy import Strategy, available, load_strategy
 
-BUILT_INS = ["area", "gradient", "mask", "none", "opacity", "pocket"]
+BUILT_INS = ["area", "efficientgs", "gradient", "lightgaussian", "mask", "minisplatting", "none", "opacity", "pocket",
+             "radsplat", "speedysplat", "trimfat"]
 CONF = Path(__file__).resolve().parents[2] / "bench" / "conf" / "strategy"
 
 
@@ -91,3 +93,15 @@ def test_third_party_plugin_is_found_through_its_entry_point(tmp_path, monkeypat
             "strategy 'mine' parameter threshold: expected a number, found 'abc'")
     finally:
         sys.modules.pop("myplug", None)
+
+
+def test_list_strategies_names_the_literature_criteria_and_their_origin():
+    from bench.report.names import LITERATURE
+
+    out = subprocess.run([sys.executable, "-m", "bench.list_strategies"], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parents[2]).stdout
+    authors = {"lightgaussian": "LightGaussian", "radsplat": "RadSplat", "minisplatting": "Mini-Splatting",
+               "efficientgs": "EfficientGS", "speedysplat": "Speedy-Splat", "trimfat": "Trimming the Fat"}
+    for name in LITERATURE:
+        line = next(ln for ln in out.splitlines() if ln.startswith(f"{name} "))
+        assert authors[name] in line and "(" in line, line  # the authors, and the commit read

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from bench.slam.raster_fused.binning import _bin_pairs, _depth_order, _in_view
 from bench.slam.raster_fused.compositing import _backward, _forward, _pack, _reduce_stats, _reduce_sum, _schedule
+from bench.slam.raster_fused.criteria_stats import _extra
 from bench.slam.raster_fused.projection import _project_bwd, _project_fwd, _sum_rows
 
 _COMPILING_ENV = "POCKETBENCH_COMPILING_KERNELS"
@@ -30,7 +31,7 @@ def _load_from_cache() -> None:
     _cache_checked = True
     try:
         kernels = (_project_fwd, _project_bwd, _sum_rows, _in_view, _depth_order, _bin_pairs, _pack, _schedule,
-                   _forward, _backward, _reduce_sum, _reduce_stats)
+                   _forward, _backward, _reduce_sum, _reduce_stats, _extra)
         if all(k._cache._cache_file._load_index() for k in kernels):
             return
     except Exception:  # noqa: BLE001 - a numba without these internals: compile in this process

@@ -7,12 +7,14 @@ import torch
 from bench.slam.conic import conic
 from bench.slam.raster_fused.autograd import composite, project
 from bench.slam.raster_fused.binning import bin_pairs, in_view
+from bench.slam.raster_fused.criteria_stats import extra_stats
 
 
 def compile_kernels() -> None:
-    """Call every kernel once on a small view (forward with and without statistics; backward to the
-    Gaussians and to the pose), with the argument types of a real run, so that numba compiles and
-    caches each of them. The same calls as ``raster._render_fused`` makes, without importing it."""
+    """Call every kernel once on a small view (forward with and without statistics, the criteria's
+    statistics; backward to the Gaussians and to the pose), with the argument types of a real run, so
+    that numba compiles and caches each of them. The same calls as ``raster._render_fused`` makes,
+    without importing it."""
     n, size, tiles = 64, 64, 4
     g = torch.Generator().manual_seed(0)
     means = torch.cat([torch.rand(n, 2, generator=g) - 0.5, torch.full((n, 1), 3.0)], 1)
@@ -30,3 +32,6 @@ def compile_kernels() -> None:
         acc, t_final, *_ = composite(m2.index_select(0, vis), inv, op.index_select(0, vis), feat, gid, tile_start,
                                      size, size, tiles, stats)
         (acc.sum() + t_final.sum()).backward()
+        if stats:  # the pruning criteria's statistics (rasterize(extra=...))
+            extra_stats(m2.index_select(0, vis), inv, op.index_select(0, vis), col.index_select(0, vis), gid,
+                        tile_start, size, size, tiles, 0.0, True)
