@@ -37,8 +37,11 @@ RUN_FIELDS: tuple[Field, ...] = (
     Field("dataset", "", "dataset name", "text"),
     Field("seq", "", "sequence as written, or the dataset's default; null only if it has none", "text"),
     Field("seed", "", "run seed"),
-    Field("keep_ratio", "", "`prune.keep_ratio` given to the strategy; null without `+strategy` or with "
-          "`prune.target=absolute`"),
+    Field(
+        "keep_ratio",
+        "",
+        "`prune.keep_ratio` given to the strategy; null without `+strategy` or with `prune.target=absolute`",
+    ),
     Field("slam_preset", "", "`slam.name`, the backend preset (runs of different presets never pool)", "text"),
     Field("config_hash", "", "hash of the resolved config (what resume compares)", "text"),
     Field("code_version", "", "commit, code-tree hash, dirty flag, diff hash (resume ignores the commit)", "object"),
@@ -64,13 +67,25 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
     Field("prune_s", "s", "pruning time"),
     # the headline peak split into parts (bench/run/loop.py:memory_parts); mem_state + mem_keyframes + mem_other +
     # mem_work = the peak column (cuda_alloc_peak_mib on CUDA, torch_live_peak_mib on CPU), to rounding
-    Field("mem_state_mib", "MiB", "Gaussian state at its largest in the window (after densification, during "
-          "mapping): params, a gradient per param, Adam moments, strategy state; exact bytes"),
+    Field(
+        "mem_state_mib",
+        "MiB",
+        "Gaussian state at its largest in the window (after densification, during "
+        "mapping): params, a gradient per param, Adam moments, strategy state; exact bytes",
+    ),
     Field("mem_keyframes_mib", "MiB", "keyframe store: every keyframe's colour, depth and pose; exact bytes"),
-    Field("mem_other_mib", "MiB", "other tensors still live at the window's end (current frame, previous frame for "
-          "the front-end, pixel grid, ...): live bytes then, minus state and keyframes then"),
-    Field("mem_work_mib", "MiB", "transient work buffers at the peak (render outputs, rasterizer buffers, autograd "
-          "saved tensors): the peak minus the three parts above"),
+    Field(
+        "mem_other_mib",
+        "MiB",
+        "other tensors still live at the window's end (current frame, previous frame for "
+        "the front-end, pixel grid, ...): live bytes then, minus state and keyframes then",
+    ),
+    Field(
+        "mem_work_mib",
+        "MiB",
+        "transient work buffers at the peak (render outputs, rasterizer buffers, autograd "
+        "saved tensors): the peak minus the three parts above",
+    ),
     # what pruning saw, removed, and what came back; counts over the window's prune calls, quartiles of the last
     Field("cand_cov_q1", "px", "candidates' coverage C_i at the pruning pose, first quartile"),
     Field("cand_cov_q2", "px", "... median"),
@@ -80,12 +95,24 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
     Field("cand_w_q3", "", "... third quartile"),
     Field("n_redundant", "", "candidates whose max blending weight at the pruning pose is <= 0.05 (redundant)"),
     Field("n_pruned_redundant", "", "of those, the ones the strategy pruned"),
-    Field("n_hole_px", "", "pixels the prune pushed below the densification silhouette `slam.densify_silhouette` "
-          "at the pruning pose (holes)"),
-    Field("n_reseeded_holes", "", "Gaussians this keyframe seeded in pixels the prunes since the previous "
-          "keyframe opened (their surface points, from the observed depth, projected into this view)"),
-    Field("n_score_views", "", "views the keyframe's prune rendered to score the map (`PruneContext.render_views`; "
-          "the criteria with `score_views`); null for a strategy that scores from the pruning render alone"),
+    Field(
+        "n_hole_px",
+        "",
+        "pixels the prune pushed below the densification silhouette `slam.densify_silhouette` "
+        "at the pruning pose (holes)",
+    ),
+    Field(
+        "n_reseeded_holes",
+        "",
+        "Gaussians this keyframe seeded in pixels the prunes since the previous "
+        "keyframe opened (their surface points, from the observed depth, projected into this view)",
+    ),
+    Field(
+        "n_score_views",
+        "",
+        "views the keyframe's prune rendered to score the map (`PruneContext.render_views`; "
+        "the criteria with `score_views`); null for a strategy that scores from the pruning render alone",
+    ),
     Field("score_views", "", "their keyframe indices, as ranges (`0-3;5`); null as above", "text"),
     Field("diag_s", "s", "time spent on the pruning diagnostics above (included in `prune_s`)"),
     # how well mapping fitted the keyframe it just mapped (bench/slam/prune_diagnostics.py:_fit_diagnostics)
@@ -142,24 +169,47 @@ METRIC_FIELDS: tuple[Field, ...] = (
     Field("ate_first_frame", "", "first tracked frame the ATE is over (position among tracked frames)"),
     Field("ate_last_frame", "", "last tracked frame the ATE is over (inclusive)"),
     Field("path_length_m", "m", "ground-truth path length over the tracked frames"),
-    Field("path_length_ratio", "", "estimated path length / ground-truth path length over the tracked frames, "
-          "unaligned: below 1, the tracker lost scale and came out short"),
+    Field(
+        "path_length_ratio",
+        "",
+        "estimated path length / ground-truth path length over the tracked frames, "
+        "unaligned: below 1, the tracker lost scale and came out short",
+    ),
     Field("rpe_trans_rmse_m", "m", "RPE translation RMSE (`eval.rpe=true`)"),
     Field("rpe_rot_rmse_deg", "deg", "RPE rotation RMSE (`eval.rpe=true`)"),
     Field("rpe_delta_frames", "", "RPE step"),
-    Field("psnr_db", "dB", "PSNR of frames rendered from the final map at the estimated poses, scored under "
-          "`eval_protocol`"),
+    Field(
+        "psnr_db",
+        "dB",
+        "PSNR of frames rendered from the final map at the estimated poses, scored under `eval_protocol`",
+    ),
     Field("ssim", "", "SSIM (11 px Gaussian window), same frames and protocol"),
-    Field("ms_ssim", "", "MS-SSIM (5 scales; what the paper's base system reports as SSIM), same frames and "
-          "protocol; null for images under 176 px on a side"),
+    Field(
+        "ms_ssim",
+        "",
+        "MS-SSIM (5 scales; what the paper's base system reports as SSIM), same frames and "
+        "protocol; null for images under 176 px on a side",
+    ),
     Field("lpips", "", "LPIPS (AlexNet), same frames and protocol; null without local weights"),
-    Field("eval_protocol", "", "`eval.protocol` the image metrics were scored under: `full` (the whole image), "
-          "`splatam` (valid-depth mask), `released` (rendered silhouette > 0.5); absent in runs before it existed, "
-          "which were `full`", "text"),
-    Field("eval_mask_frac", "", "share of the pixels the protocol's mask kept, mean over the evaluated frames "
-          "(masked protocols only)"),
-    Field("eval_depth_range_m", "m", "[near, far] of the `splatam` mask (`dataset.eval_depth_near_m`, "
-          "`dataset.eval_depth_far_m`; far null: none)", "object"),
+    Field(
+        "eval_protocol",
+        "",
+        "`eval.protocol` the image metrics were scored under: `full` (the whole image), "
+        "`splatam` (valid-depth mask), `released` (rendered silhouette > 0.5); absent in runs before it existed, "
+        "which were `full`",
+        "text",
+    ),
+    Field(
+        "eval_mask_frac",
+        "",
+        "share of the pixels the protocol's mask kept, mean over the evaluated frames (masked protocols only)",
+    ),
+    Field(
+        "eval_depth_range_m",
+        "m",
+        "[near, far] of the `splatam` mask (`dataset.eval_depth_near_m`, `dataset.eval_depth_far_m`; far null: none)",
+        "object",
+    ),
     Field("eval_frames", "", "frames the image metrics are over (`eval.every`)"),
     Field("fps", "1/s", "frames / SLAM-loop wall time, warm-up frames excluded"),
     Field("slam_wall_s", "s", "SLAM-loop wall time after the warm-up frames"),

@@ -25,8 +25,9 @@ from bench.api import SCORE_VIEWS, PruneContext, RasterOutput, Strategy, setting
 KEEP_RULES: tuple[str, ...] = ("equal_removal", "authors")
 
 
-def rank_keep(keys: list[torch.Tensor], candidates: torch.Tensor, k: int,
-              protected: torch.Tensor | None = None) -> torch.Tensor:
+def rank_keep(
+    keys: list[torch.Tensor], candidates: torch.Tensor, k: int, protected: torch.Tensor | None = None
+) -> torch.Tensor:
     """[N] bool: every non-candidate, every ``protected`` candidate, and the best remaining candidates up to
     ``k`` kept in all, ranked by ``keys`` (primary first, each descending), then by the lower index."""
     protected = torch.zeros_like(candidates) if protected is None else protected & candidates

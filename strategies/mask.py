@@ -100,7 +100,7 @@ class MaskPruning(Strategy):
             masked = (ctx.candidates & ~keep) | (~ctx.candidates & (run > 0))
         masked &= ~ctx.is_new
         run.copy_(torch.where(masked, run + 1, torch.zeros_like(run)))  # unmasked -> the count restarts
-        return (run < self.masked_keyframes)
+        return run < self.masked_keyframes
 
     # ------------------------------------------------------------------ helpers
     @staticmethod

@@ -22,8 +22,16 @@ BUDGET_ROUNDINGS: tuple[str, ...] = ("ceil", "floor")
 TILE_SOURCES: tuple[str, ...] = ("center", "zero")
 
 
-def tile_budgets(tile: torch.Tensor, grad: torch.Tensor, candidates: torch.Tensor, n_tiles: int, n_target: int,
-                 budget_min: int, budget_max: int, rounding: str = "ceil") -> tuple[torch.Tensor, torch.Tensor]:
+def tile_budgets(
+    tile: torch.Tensor,
+    grad: torch.Tensor,
+    candidates: torch.Tensor,
+    n_tiles: int,
+    n_target: int,
+    budget_min: int,
+    budget_max: int,
+    rounding: str = "ceil",
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Per-tile budgets B_k [T] and candidate counts n_k [T] (Eqs. 7-8).
 
     G_k is the mean tracking-gradient norm of tile k's candidates, and
@@ -48,8 +56,9 @@ def tile_budgets(tile: torch.Tensor, grad: torch.Tensor, candidates: torch.Tenso
     return torch.where(occupied, budget, torch.zeros_like(budget)), n_k
 
 
-def keep_top_per_tile(score: torch.Tensor, tile: torch.Tensor, candidates: torch.Tensor,
-                      budget: torch.Tensor) -> torch.Tensor:
+def keep_top_per_tile(
+    score: torch.Tensor, tile: torch.Tensor, candidates: torch.Tensor, budget: torch.Tensor
+) -> torch.Tensor:
     """[N] bool: every non-candidate, plus the ``budget[k]`` best-scoring candidates of each tile k.
 
     Vectorised as one segmented top-k: sort candidates by score (descending), then stably by
@@ -98,18 +107,30 @@ class PocketPruning(Strategy):
     def __post_init__(self) -> None:
         super().__post_init__()  # each field's own rule
         # the one rule between two fields
-        check("pocket", self.budget_max >= self.budget_min,
-              f"budget_max: expected an integer >= budget_min ({self.budget_min}) and >= 1, found {self.budget_max!r}")
+        check(
+            "pocket",
+            self.budget_max >= self.budget_min,
+            f"budget_max: expected an integer >= budget_min ({self.budget_min}) and >= 1, found {self.budget_max!r}",
+        )
 
     def budgets(self, ctx: PruneContext) -> tuple[torch.Tensor, torch.Tensor]:
         """(B_k [T], n_k [T]) for this keyframe's tile grid."""
         tiles_x, tiles_y = ctx.raster.tiles_xy
         h, w = ctx.image_hw
         if (tiles_x, tiles_y) != (math.ceil(w / self.tile_px), math.ceil(h / self.tile_px)):
-            raise StrategyError(f"raster tile grid {tiles_x}x{tiles_y} does not match a {w}x{h} px image "
-                                f"in {self.tile_px} px tiles")
-        return tile_budgets(self._tiles(ctx), ctx.track_grad_mean, self._candidates(ctx), tiles_x * tiles_y,
-                            ctx.n_target, self.budget_min, self.budget_max, self.budget_round)
+            raise StrategyError(
+                f"raster tile grid {tiles_x}x{tiles_y} does not match a {w}x{h} px image in {self.tile_px} px tiles"
+            )
+        return tile_budgets(
+            self._tiles(ctx),
+            ctx.track_grad_mean,
+            self._candidates(ctx),
+            tiles_x * tiles_y,
+            ctx.n_target,
+            self.budget_min,
+            self.budget_max,
+            self.budget_round,
+        )
 
     def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
         score = area_score(ctx.raster, ctx.gaussians.opacities, self.area)  # [N] S_i

@@ -35,10 +35,22 @@ def test_field_names_carry_units():
 
 def test_headline_memory_prefers_the_device_figure():
     windows = [
-        {"n_gaussians": 10, "state_mib": 1.0, "cpu_rss_peak_mib": 300.0, "torch_live_peak_mib": 50.0,
-         "cuda_alloc_peak_mib": None, "cuda_reserved_peak_mib": None},
-        {"n_gaussians": 20, "state_mib": 2.0, "cpu_rss_peak_mib": 310.0, "torch_live_peak_mib": 60.0,
-         "cuda_alloc_peak_mib": None, "cuda_reserved_peak_mib": None},
+        {
+            "n_gaussians": 10,
+            "state_mib": 1.0,
+            "cpu_rss_peak_mib": 300.0,
+            "torch_live_peak_mib": 50.0,
+            "cuda_alloc_peak_mib": None,
+            "cuda_reserved_peak_mib": None,
+        },
+        {
+            "n_gaussians": 20,
+            "state_mib": 2.0,
+            "cpu_rss_peak_mib": 310.0,
+            "torch_live_peak_mib": 60.0,
+            "cuda_alloc_peak_mib": None,
+            "cuda_reserved_peak_mib": None,
+        },
     ]
     cpu = schema.memory_summary(windows, "cpu")
     assert (cpu["peak_mem_mib"], cpu["peak_mem_source"]) == (60.0, "torch_live")
@@ -50,8 +62,14 @@ def test_headline_memory_prefers_the_device_figure():
 
 
 def test_report_reads_the_column_the_writer_named():
-    kf = pd.DataFrame({"frame": [0, 3], "state_mib": [1.0, 2.0], "cpu_rss_peak_mib": [300.0, 310.0],
-                       "torch_live_peak_mib": [50.0, 60.0]})
+    kf = pd.DataFrame(
+        {
+            "frame": [0, 3],
+            "state_mib": [1.0, 2.0],
+            "cpu_rss_peak_mib": [300.0, 310.0],
+            "torch_live_peak_mib": [50.0, 60.0],
+        }
+    )
     for source, column in schema.PEAK_SOURCES.items():
         run = pd.Series({"peak_mem_source": source})
         assert peak_column(run, kf) == (column if column in kf.columns else None)

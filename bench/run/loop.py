@@ -52,12 +52,21 @@ class LoopOutcome:
 
 def flushed_rows(out: Path) -> dict[str, int]:
     """Data rows on disk in the files a checkpoint counts (each has one header line)."""
-    return {"traj": ckpt.data_rows(out / TRAJ_EST, 1), "keyframes": ckpt.data_rows(out / schema.KEYFRAMES_FILE, 1),
-            "milestones": ckpt.data_rows(out / schema.MILESTONES_FILE, 1)}
+    return {
+        "traj": ckpt.data_rows(out / TRAJ_EST, 1),
+        "keyframes": ckpt.data_rows(out / schema.KEYFRAMES_FILE, 1),
+        "milestones": ckpt.data_rows(out / schema.MILESTONES_FILE, 1),
+    }
 
 
-def run_frames(cfg: RunConfig, parts: RunSetup, out: Path, record: RunRecord,
-                 start: dict[str, Any] | None = None, preempt: Preemption | None = None) -> LoopOutcome:
+def run_frames(
+    cfg: RunConfig,
+    parts: RunSetup,
+    out: Path,
+    record: RunRecord,
+    start: dict[str, Any] | None = None,
+    preempt: Preemption | None = None,
+) -> LoopOutcome:
     """Feed every frame to the system; one flushed keyframes.csv row per keyframe window and one
     flushed traj_est.txt line per frame, so a stopped run keeps what it tracked.
 
@@ -71,7 +80,8 @@ def run_frames(cfg: RunConfig, parts: RunSetup, out: Path, record: RunRecord,
     bar = Phase("frames", parts.n_frames, "frame", cfg.progress)
     # prune.every=frame: what the frames since the last keyframe pruned
     between: dict[str, Any] = dict.fromkeys(
-        ("n_pruned", "n_candidates", "prune_s", "diag_s", *schema.PRUNE_COUNT_COLUMNS), 0)
+        ("n_pruned", "n_candidates", "prune_s", "diag_s", *schema.PRUNE_COUNT_COLUMNS), 0
+    )
     first = 0
     if start is not None:
         done = json.loads(start["drive"]["json"])  # floats round-trip json exactly
@@ -84,10 +94,13 @@ def run_frames(cfg: RunConfig, parts: RunSetup, out: Path, record: RunRecord,
         bar.update(first)
     every = cfg.checkpoint.every
     parts.probe.start_window()
-    with FlushedRows(out / schema.KEYFRAMES_FILE, schema.KEYFRAME_COLUMNS, start is not None) as keyframes, \
-            TumAppender(out / TRAJ_EST, append=start is not None) as traj, \
-            FlushedRows(out / schema.MILESTONES_FILE, schema.MILESTONE_COLUMNS, start is not None,
-                        bool(cfg.eval.at_frames)) as milestones:
+    with (
+        FlushedRows(out / schema.KEYFRAMES_FILE, schema.KEYFRAME_COLUMNS, start is not None) as keyframes,
+        TumAppender(out / TRAJ_EST, append=start is not None) as traj,
+        FlushedRows(
+            out / schema.MILESTONES_FILE, schema.MILESTONE_COLUMNS, start is not None, bool(cfg.eval.at_frames)
+        ) as milestones,
+    ):
         try:
             for i in range(first, parts.n_frames):
                 frame = parts.seq[i]  # loading is not SLAM time
@@ -104,8 +117,9 @@ def run_frames(cfg: RunConfig, parts: RunSetup, out: Path, record: RunRecord,
                 drive.gt_c2w.append(frame.gt_c2w)
                 metrics["num_frames"] = i + 1
                 if not res.is_keyframe:
-                    between = {k: v + (getattr(res, k) if hasattr(res, k) else res.diag.get(k, 0))
-                               for k, v in between.items()}
+                    between = {
+                        k: v + (getattr(res, k) if hasattr(res, k) else res.diag.get(k, 0)) for k, v in between.items()
+                    }
                 else:
                     row = keyframe_row(parts, res, frame.index, between)
                     between = dict.fromkeys(between, 0)
@@ -170,8 +184,9 @@ class FlushedRows:
             self._fh.close()
 
 
-def write_checkpoint(cfg: RunConfig, parts: RunSetup, drive: LoopOutcome, out: Path, record: RunRecord,
-                     between: dict[str, Any]) -> None:
+def write_checkpoint(
+    cfg: RunConfig, parts: RunSetup, drive: LoopOutcome, out: Path, record: RunRecord, between: dict[str, Any]
+) -> None:
     """The loop's whole state after the frames done so far (see ``bench.run.checkpoint``); its cost goes into
     metrics.json's ``checkpoint`` block, outside the SLAM time and the metrics a resume must repeat."""
     stats = record["checkpoint"]
@@ -194,10 +209,17 @@ def write_checkpoint(cfg: RunConfig, parts: RunSetup, drive: LoopOutcome, out: P
         "stats": {**stats, "written": stats["written"] + 1},  # as they will be once this one is on disk
     }  # fmt: skip
     cost = ckpt.save(out, payload, cfg.checkpoint.keep)
-    stats.update(written=stats["written"] + 1, mib_last=cost.mib,
-                 write_s_total=round(stats["write_s_total"] + cost.write_s, 4))
-    log.debug("%s: checkpoint at frame %d (keyframe %d): %.3f MiB in %.4f s", out, n_done, payload["keyframe"],
-              cost.mib, cost.write_s)
+    stats.update(
+        written=stats["written"] + 1, mib_last=cost.mib, write_s_total=round(stats["write_s_total"] + cost.write_s, 4)
+    )
+    log.debug(
+        "%s: checkpoint at frame %d (keyframe %d): %.3f MiB in %.4f s",
+        out,
+        n_done,
+        payload["keyframe"],
+        cost.mib,
+        cost.write_s,
+    )
 
 
 def _stack_all(mats: list[torch.Tensor | None]) -> torch.Tensor | list[torch.Tensor | None]:
@@ -214,10 +236,25 @@ def milestone_row(cfg: RunConfig, parts: RunSetup, drive: LoopOutcome, out: Path
     est_c2w = tracked_c2w(system, n_done)
     res = evaluate(cfg, out, parts, est_c2w, drive, system.device, write_gt=False)
     mem = schema.memory_summary(drive.windows, system.device.type)
-    row = {k: res.get(k) for k in ("path_length_m", "path_length_ratio", "ate_rmse_m", "psnr_db", "ssim", "ms_ssim",
-                                   "lpips", "eval_frames")}
-    row.update(frames=n_done, n_gaussians=len(system.map), peak_mem_mib=mem[schema.PEAK_FIELD],
-               state_mib=round(system.map.state_bytes() / schema.MIB, 4))
+    row = {
+        k: res.get(k)
+        for k in (
+            "path_length_m",
+            "path_length_ratio",
+            "ate_rmse_m",
+            "psnr_db",
+            "ssim",
+            "ms_ssim",
+            "lpips",
+            "eval_frames",
+        )
+    }
+    row.update(
+        frames=n_done,
+        n_gaussians=len(system.map),
+        peak_mem_mib=mem[schema.PEAK_FIELD],
+        state_mib=round(system.map.state_bytes() / schema.MIB, 4),
+    )
     row["eval_s"] = round(time.perf_counter() - t0, 3)
     return row
 
@@ -244,8 +281,9 @@ def keyframe_row(parts: RunSetup, res: FrameResult, frame_index: int, between: d
         "track_s": round(res.track_s, 4),
         "map_s": round(res.map_s, 4),
         "prune_s": round(res.prune_s + between["prune_s"], 4),
-        **memory_parts(mem, live_mib, diag.get("state_map_bytes", state_bytes), state_bytes,
-                       system.keyframe_store_bytes()),
+        **memory_parts(
+            mem, live_mib, diag.get("state_map_bytes", state_bytes), state_bytes, system.keyframe_store_bytes()
+        ),
         **{k: _round(diag.get(k)) for k in schema.PRUNE_QUARTILE_COLUMNS},
         **{k: diag.get(k, 0) + between[k] for k in schema.PRUNE_COUNT_COLUMNS},
         **{k: diag.get(k) for k in schema.SCORE_VIEW_COLUMNS},
@@ -254,8 +292,13 @@ def keyframe_row(parts: RunSetup, res: FrameResult, frame_index: int, between: d
     }
 
 
-def memory_parts(mem: dict[str, float | None], live_mib: float | None, state_map_bytes: int, state_end_bytes: int,
-                 keyframe_bytes: int) -> dict[str, float | None]:
+def memory_parts(
+    mem: dict[str, float | None],
+    live_mib: float | None,
+    state_map_bytes: int,
+    state_end_bytes: int,
+    keyframe_bytes: int,
+) -> dict[str, float | None]:
     """The window's headline peak split into parts that add up to it (keyframes.csv ``mem_*``).
 
     The Gaussian state at its largest (after densification, mid-mapping) and the keyframe store are
@@ -263,14 +306,24 @@ def memory_parts(mem: dict[str, float | None], live_mib: float | None, state_map
     is gone: live bytes minus the state and the keyframes then. The work buffers at the peak are
     what the peak holds beyond those three. Null where the device has no live-byte count.
     """
-    peak = next((mem.get(c) for c in (schema.PEAK_SOURCES["cuda_alloc"], schema.PEAK_SOURCES["torch_live"])
-                 if mem.get(c) is not None), None)
+    peak = next(
+        (
+            mem.get(c)
+            for c in (schema.PEAK_SOURCES["cuda_alloc"], schema.PEAK_SOURCES["torch_live"])
+            if mem.get(c) is not None
+        ),
+        None,
+    )
     if peak is None or live_mib is None:
         return dict.fromkeys(schema.MEMORY_PART_COLUMNS)
     state, kfs = state_map_bytes / schema.MIB, keyframe_bytes / schema.MIB
     other = live_mib - state_end_bytes / schema.MIB - kfs
-    return {"mem_state_mib": _round(state), "mem_keyframes_mib": _round(kfs), "mem_other_mib": _round(other),
-            "mem_work_mib": _round(peak - state - kfs - other)}
+    return {
+        "mem_state_mib": _round(state),
+        "mem_keyframes_mib": _round(kfs),
+        "mem_other_mib": _round(other),
+        "mem_work_mib": _round(peak - state - kfs - other),
+    }
 
 
 def _sync(device: torch.device) -> None:

@@ -30,8 +30,16 @@ class PruneDiagnostics:
         diag["kf_depth_frac"] = float(has_depth.float().mean())
 
     @torch.no_grad()
-    def _prune_diagnostics(self, diag: dict, out: RasterOutput, candidates: torch.Tensor, keep: torch.Tensor | None,
-                           n_removed: int, w2c: torch.Tensor, depth: torch.Tensor) -> None:
+    def _prune_diagnostics(
+        self,
+        diag: dict,
+        out: RasterOutput,
+        candidates: torch.Tensor,
+        keep: torch.Tensor | None,
+        n_removed: int,
+        w2c: torch.Tensor,
+        depth: torch.Tensor,
+    ) -> None:
         """What this prune saw and did, at the pruning pose: the candidates' C_i and max blending
         weight quartiles, the redundant candidates (weight never above REDUNDANT_WEIGHT in this view)
         and how many of them were pruned, and the pixels the prune pushed below the densification

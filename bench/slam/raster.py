@@ -72,8 +72,9 @@ def check_extra(extra) -> frozenset[str]:
     extra = frozenset(extra or ())
     unknown = sorted(extra - set(EXTRA_STATS))
     if unknown:
-        raise ConfigError(f"rasterize extra statistics: expected among {', '.join(EXTRA_STATS)}, found "
-                          f"{', '.join(unknown)}")
+        raise ConfigError(
+            f"rasterize extra statistics: expected among {', '.join(EXTRA_STATS)}, found {', '.join(unknown)}"
+        )
     return extra
 
 
@@ -128,12 +129,16 @@ def resolve_backend(backend: str, device: torch.device) -> str:
 
         return "gsplat" if unavailable_reason() is None else "torch"
     if backend == "fused" and device.type != "cpu":
-        raise ConfigError(f"the fused rasterizer runs on cpu tensors; found device '{device}' "
-                          "(use slam.raster_backend=torch or auto there)")
+        raise ConfigError(
+            f"the fused rasterizer runs on cpu tensors; found device '{device}' "
+            "(use slam.raster_backend=torch or auto there)"
+        )
     if backend == "gsplat":
         if device.type != "cuda":
-            raise ConfigError(f"slam.raster_backend=gsplat runs on cuda tensors; found device '{device}' "
-                              "(use slam.raster_backend=fused or auto there)")
+            raise ConfigError(
+                f"slam.raster_backend=gsplat runs on cuda tensors; found device '{device}' "
+                "(use slam.raster_backend=fused or auto there)"
+            )
         from bench.slam.raster_gsplat import unavailable_reason
 
         reason = unavailable_reason()
@@ -208,7 +213,8 @@ def _front_fused(means, log_scales, quats, w2c, K, width, height, near_m) -> _Fu
     tiles_x = (width + TILE_PX - 1) // TILE_PX
     tiles_y = (height + TILE_PX - 1) // TILE_PX
     means2d, cov, z, rect, radius_px, tile_id = raster_fused.project(
-        means, log_scales, quats, w2c, K, width, height, near_m, tiles_x, tiles_y)
+        means, log_scales, quats, w2c, K, width, height, near_m, tiles_x, tiles_y
+    )
     cov2d = cov[:, _COV2D_ORDER].reshape(-1, 2, 2)  # [N, 2, 2]
     vis = raster_fused.in_view(rect)  # [V]
     return _FusedFront(means2d, cov2d, cov, z, rect, radius_px, tile_id, tiles_x, tiles_y, vis)
@@ -278,12 +284,29 @@ def rasterize(
         from bench.slam.raster_gsplat import rasterize_gsplat
 
         if extra:
-            raise ConfigError(f"slam.raster_backend=gsplat: statistics {', '.join(sorted(extra))} are not "
-                              "implemented there (use slam.raster_backend=torch)")
+            raise ConfigError(
+                f"slam.raster_backend=gsplat: statistics {', '.join(sorted(extra))} are not "
+                "implemented there (use slam.raster_backend=torch)"
+            )
         z = means @ w2c[2, :3] + w2c[2, 3]  # [N] camera z of every Gaussian
-        return RasterOutput(**rasterize_gsplat(means, log_scales, quats, opacities, colors, z,
-                                               _paint_depth(z, depth_far_m), w2c, K, width, height, bg, near_m,
-                                               stats))
+        return RasterOutput(
+            **rasterize_gsplat(
+                means,
+                log_scales,
+                quats,
+                opacities,
+                colors,
+                z,
+                _paint_depth(z, depth_far_m),
+                w2c,
+                K,
+                width,
+                height,
+                bg,
+                near_m,
+                stats,
+            )
+        )
     if backend == "fused":
         ff = _front_fused(means, log_scales, quats, w2c, K, width, height, near_m)
         return _render_fused(ff, opacities, colors, depth_far_m, bg, width, height, stats, extra)
@@ -297,8 +320,9 @@ def _paint_depth(z: torch.Tensor, depth_far_m: float | None) -> torch.Tensor:
     return z if depth_far_m is None else torch.where(z < depth_far_m, z, torch.zeros_like(z))
 
 
-def _render_fused(ff: _FusedFront, opacities, colors, depth_far_m, bg, width, height, stats,
-                  extra=frozenset()) -> RasterOutput:
+def _render_fused(
+    ff: _FusedFront, opacities, colors, depth_far_m, bg, width, height, stats, extra=frozenset()
+) -> RasterOutput:
     from bench.slam import raster_fused  # numba compiles on first use; the torch backend never needs it
 
     n_tiles = ff.tiles_x * ff.tiles_y
@@ -313,17 +337,36 @@ def _render_fused(ff: _FusedFront, opacities, colors, depth_far_m, bg, width, he
         inv = conic(*ff.cov.index_select(0, vis).unbind(-1))  # [V, 3]
         feat = torch.cat([colors.index_select(0, vis), _paint_depth(z_v, depth_far_m)[:, None]], 1).float()  # [V, 4]
         acc, t_final, cov_v, hits_v, maxw_v = raster_fused.composite(
-            ff.means2d.index_select(0, vis).float(), inv.float(), opacities.index_select(0, vis).float(), feat,
-            gid, tile_start, width, height, ff.tiles_x, stats)
+            ff.means2d.index_select(0, vis).float(),
+            inv.float(),
+            opacities.index_select(0, vis).float(),
+            feat,
+            gid,
+            tile_start,
+            width,
+            height,
+            ff.tiles_x,
+            stats,
+        )
         if stats:
             coverage[vis], hit_count[vis], max_weight[vis] = cov_v, hits_v, maxw_v
         if extra:
             from bench.slam.raster_fused.criteria_stats import extra_stats
 
             ex = torch.zeros(n, 5)
-            ex[vis] = extra_stats(ff.means2d.index_select(0, vis), inv, opacities.index_select(0, vis),
-                                  colors.index_select(0, vis), gid, tile_start, width, height, ff.tiles_x,
-                                  float(bg.sum()), "alpha_grad_sq" in extra)
+            ex[vis] = extra_stats(
+                ff.means2d.index_select(0, vis),
+                inv,
+                opacities.index_select(0, vis),
+                colors.index_select(0, vis),
+                gid,
+                tile_start,
+                width,
+                height,
+                ff.tiles_x,
+                float(bg.sum()),
+                "alpha_grad_sq" in extra,
+            )
     else:  # nothing in view: constant images that carry no gradient, as the torch backend returns
         acc, t_final = torch.zeros(width * height, 4), torch.ones(width * height)
     dtype = colors.dtype
@@ -331,10 +374,18 @@ def _render_fused(ff: _FusedFront, opacities, colors, depth_far_m, bg, width, he
         ex = torch.zeros(n, 5)
     ext = {}
     if extra:
-        cols = {"weight_sum": ex[:, 0], "opacity_t_sum": ex[:, 1], "top1_count": ex[:, 2].round().long(),
-                "top1_after_count": ex[:, 3].round().long(), "alpha_grad_sq": ex[:, 4]}
-        ext = {f: cols[f] if cols[f].dtype == torch.int64 else cols[f].to(dtype)
-               for name in extra for f in EXTRA_STATS[name]}
+        cols = {
+            "weight_sum": ex[:, 0],
+            "opacity_t_sum": ex[:, 1],
+            "top1_count": ex[:, 2].round().long(),
+            "top1_after_count": ex[:, 3].round().long(),
+            "alpha_grad_sq": ex[:, 4],
+        }
+        ext = {
+            f: cols[f] if cols[f].dtype == torch.int64 else cols[f].to(dtype)
+            for name in extra
+            for f in EXTRA_STATS[name]
+        }
     return RasterOutput(
         color=(acc[:, :3] + t_final[:, None] * bg).to(dtype).reshape(height, width, 3),
         depth=acc[:, 3].to(dtype).reshape(height, width),
@@ -479,9 +530,20 @@ def _render_torch(fr: _Front, opacities, colors, z_paint, bg, width, height, sta
                 max_weight.scatter_reduce_(0, flat_g[hits], w.detach().reshape(-1)[hits], reduce="amax")
         if extra:
             with torch.no_grad():
-                _extra_torch(ext, extra, gidx, keep & pix_valid[tiles][:, :, None], w.detach(), alpha.detach(),
-                             log_t.detach(), log1m.detach(), torch.exp(log_op_ext[gidx]).detach(),
-                             csum_ext[gidx], float(bg.sum()), N)
+                _extra_torch(
+                    ext,
+                    extra,
+                    gidx,
+                    keep & pix_valid[tiles][:, :, None],
+                    w.detach(),
+                    alpha.detach(),
+                    log_t.detach(),
+                    log1m.detach(),
+                    torch.exp(log_op_ext[gidx]).detach(),
+                    csum_ext[gidx],
+                    float(bg.sum()),
+                    N,
+                )
 
     # tiles with no Gaussians show the background
     empty = (per_tile == 0).nonzero().flatten()

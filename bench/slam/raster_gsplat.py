@@ -64,8 +64,9 @@ def unavailable_reason() -> str | None:
     return None
 
 
-def rasterize_gsplat(means, log_scales, quats, opacities, colors, z, z_paint, w2c, K, width, height, bg, near_m,
-                     stats) -> dict:
+def rasterize_gsplat(
+    means, log_scales, quats, opacities, colors, z, z_paint, w2c, K, width, height, bg, near_m, stats
+) -> dict:
     """Render with gsplat (CUDA tensors): the fields of ``RasterOutput``, as a dict.
 
     Arguments as ``bench.slam.raster.rasterize``, plus ``z`` [N], the camera z of every Gaussian, and
@@ -80,8 +81,20 @@ def rasterize_gsplat(means, log_scales, quats, opacities, colors, z, z_paint, w2
     half = torch.zeros(3, 3, device=device, dtype=K.dtype)
     half[0, 2] = half[1, 2] = 0.5
     _, _, gids, radii, m2_g, depth_g, conics, _ = fully_fused_projection(
-        means, None, quats, torch.exp(log_scales), w2c[None], (K + half)[None], width, height, eps2d=0.3,
-        near_plane=near_m, far_plane=1e10, packed=True, opacities=opacities.detach())
+        means,
+        None,
+        quats,
+        torch.exp(log_scales),
+        w2c[None],
+        (K + half)[None],
+        width,
+        height,
+        eps2d=0.3,
+        near_plane=near_m,
+        far_plane=1e10,
+        packed=True,
+        opacities=opacities.detach(),
+    )
     gid = gids.long()  # [V] the Gaussians gsplat renders
     # [N, 2] on the reference's pixel grid; the rasterizer reads it back through ``gid``, so the loss
     # flows through this tensor and a strategy's retain_grad on it sees dL/d mean2d
@@ -103,32 +116,68 @@ def rasterize_gsplat(means, log_scales, quats, opacities, colors, z, z_paint, w2
             m2 = means2d[gid].detach()
             inside = (m2[:, 0] >= 0) & (m2[:, 0] < width) & (m2[:, 1] >= 0) & (m2[:, 1] < height)
             tile_id[gid] = torch.where(
-                inside, (m2[:, 1] // TILE_PX).long() * tiles_x + (m2[:, 0] // TILE_PX).long(),
-                torch.full_like(gid, -1))
+                inside, (m2[:, 1] // TILE_PX).long() * tiles_x + (m2[:, 0] // TILE_PX).long(), torch.full_like(gid, -1)
+            )
     flatten_ids = None
     if gid.numel():
         _, isect_ids, flatten_ids = isect_tiles(
-            m2_g, radii, depth_g, TILE_PX, tiles_x, tiles_y, packed=True, n_images=1,
-            image_ids=torch.zeros_like(gids), gaussian_ids=gids)
+            m2_g,
+            radii,
+            depth_g,
+            TILE_PX,
+            tiles_x,
+            tiles_y,
+            packed=True,
+            n_images=1,
+            image_ids=torch.zeros_like(gids),
+            gaussian_ids=gids,
+        )
         offsets = isect_offset_encode(isect_ids, 1, tiles_x, tiles_y)  # [1, tiles_y, tiles_x]
     if flatten_ids is None or not flatten_ids.numel():  # nothing in view: constant images, no gradient
         return dict(
-            color=bg.expand(height, width, 3).clone(), depth=torch.zeros(height, width, device=device, dtype=dtype),
-            alpha=torch.zeros(height, width, device=device, dtype=dtype), means2d=means2d, cov2d=cov2d, depths=z,
-            radius_px=radius_px, tile_id=tile_id, tiles_xy=(tiles_x, tiles_y), coverage=coverage,
-            hit_count=hit_count, max_weight=max_weight)
+            color=bg.expand(height, width, 3).clone(),
+            depth=torch.zeros(height, width, device=device, dtype=dtype),
+            alpha=torch.zeros(height, width, device=device, dtype=dtype),
+            means2d=means2d,
+            cov2d=cov2d,
+            depths=z,
+            radius_px=radius_px,
+            tile_id=tile_id,
+            tiles_xy=(tiles_x, tiles_y),
+            coverage=coverage,
+            hit_count=hit_count,
+            max_weight=max_weight,
+        )
     feat = torch.cat([colors, z_paint[:, None]], 1)[gid]  # [V, 4] colour, painted depth
     op_v = opacities[gid]
     render, alphas = rasterize_to_pixels(
-        means2d[gid] + 0.5, conics, feat.contiguous(), op_v.contiguous(), width, height, TILE_PX, offsets,
-        flatten_ids, packed=True)  # no background here: gsplat's packed path checks its shape as [channels]
+        means2d[gid] + 0.5,
+        conics,
+        feat.contiguous(),
+        op_v.contiguous(),
+        width,
+        height,
+        TILE_PX,
+        offsets,
+        flatten_ids,
+        packed=True,
+    )  # no background here: gsplat's packed path checks its shape as [channels]
     render, alpha = render[0], alphas[0, ..., 0]  # [H, W, 4], [H, W]
     if stats:
         with torch.no_grad():
             per_tile = torch.diff(offsets.reshape(-1).long(), append=offsets.new_full((1,), flatten_ids.numel()).long())
             cov_v, hits_v, maxw_v = pair_stats(
-                means2d[gid].detach(), conics.detach(), op_v.detach(), flatten_ids.long(), per_tile, tiles_x,
-                width, height, GSPLAT_ALPHA_MAX, strict_stop=True)
+                means2d[gid].detach(),
+                conics.detach(),
+                op_v.detach(),
+                flatten_ids.long(),
+                per_tile,
+                tiles_x,
+                width,
+                height,
+                GSPLAT_ALPHA_MAX,
+                strict_stop=True,
+            )
             coverage[gid], hit_count[gid], max_weight[gid] = cov_v.to(dtype), hits_v, maxw_v.to(dtype)
     return dict(
         color=render[..., :3] + (1.0 - alpha)[..., None] * bg,
@@ -181,11 +230,15 @@ def pair_stats(
     n_pairs = pair_gid.numel()
     if n_pairs == 0:
         return coverage.float(), hits, maxw
-    ly, lx = torch.meshgrid(torch.arange(TILE_PX, device=dev, dtype=torch.int32),
-                            torch.arange(TILE_PX, device=dev, dtype=torch.int32), indexing="ij")
+    ly, lx = torch.meshgrid(
+        torch.arange(TILE_PX, device=dev, dtype=torch.int32),
+        torch.arange(TILE_PX, device=dev, dtype=torch.int32),
+        indexing="ij",
+    )
     lx, ly = lx.reshape(1, -1), ly.reshape(1, -1)  # [1, 256]
-    tile_of_pair = torch.repeat_interleave(torch.arange(per_tile.numel(), device=dev, dtype=torch.int32),
-                                           per_tile)  # [P]
+    tile_of_pair = torch.repeat_interleave(
+        torch.arange(per_tile.numel(), device=dev, dtype=torch.int32), per_tile
+    )  # [P]
     ends = torch.cumsum(per_tile, 0).tolist()
     starts = [e - k for e, k in zip(ends, per_tile.tolist(), strict=True)]
     budget = max(1, STATS_CHUNK_ELEMS // (TILE_PX * TILE_PX))

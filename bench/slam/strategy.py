@@ -223,8 +223,10 @@ class CheckedStrategy(Strategy):
         self.reads = frozenset(strategy.reads)
         unknown = sorted(self.reads - set(EXTRA_STATS) - {READS_MAPPING_GRAD2D})
         if unknown:
-            raise StrategyError(f"strategy '{name}' reads: expected among "
-                                f"{', '.join([*EXTRA_STATS, READS_MAPPING_GRAD2D])}, found {', '.join(unknown)}")
+            raise StrategyError(
+                f"strategy '{name}' reads: expected among "
+                f"{', '.join([*EXTRA_STATS, READS_MAPPING_GRAD2D])}, found {', '.join(unknown)}"
+            )
 
     def _fail(self, hook: str, expected: str, found: str) -> StrategyError:
         return StrategyError(f"strategy '{self.name}' {hook}: expected {expected}, found {found}")
@@ -292,8 +294,9 @@ _RESULT_CHECKS: dict[str, Callable[..., Any]] = {
 }
 HOOKS: tuple[str, ...] = tuple(n for n, v in vars(Strategy).items() if callable(v) and not n.startswith("_"))
 if set(HOOKS) != set(_RESULT_CHECKS):  # a hook without a check would reach the core unchecked, or not at all
-    raise TypeError(f"CheckedStrategy: hooks of Strategy {sorted(HOOKS)} and checked hooks "
-                    f"{sorted(_RESULT_CHECKS)} differ")
+    raise TypeError(
+        f"CheckedStrategy: hooks of Strategy {sorted(HOOKS)} and checked hooks {sorted(_RESULT_CHECKS)} differ"
+    )
 
 
 def _forward(hook: str) -> Callable[..., Any]:

@@ -83,8 +83,9 @@ class System(Tracking, Mapping, PruneDiagnostics):
         torch.set_flush_denormal(True)
         self.K = K.to(device=device, dtype=torch.float32)
         self.H, self.W = height, width
-        self.map = GaussianMap(device, lrs=asdict(cfg.lrs), extra=strategy.extra_params(),
-                               state_dtypes=strategy.state_spec())
+        self.map = GaussianMap(
+            device, lrs=asdict(cfg.lrs), extra=strategy.extra_params(), state_dtypes=strategy.state_spec()
+        )
         self.map.state["_track_grad_sum"] = torch.empty(0, device=device)
         self.map.state["_track_grad_n"] = torch.empty(0, device=device)
         # sum of ||dL/d means2d|| over the mapping iterations that rendered a Gaussian, and those iterations
@@ -93,8 +94,10 @@ class System(Tracking, Mapping, PruneDiagnostics):
         self._map_grad2d = READS_MAPPING_GRAD2D in reads
         if reads & set(EXTRA_STATS) and resolve_backend(cfg.raster_backend, device) == "gsplat":
             # said at the start, not at the first prune
-            raise ConfigError(f"slam.raster_backend=gsplat: statistics {', '.join(sorted(reads & set(EXTRA_STATS)))} "
-                              "that the strategy reads are not implemented there (use slam.raster_backend=torch)")
+            raise ConfigError(
+                f"slam.raster_backend=gsplat: statistics {', '.join(sorted(reads & set(EXTRA_STATS)))} "
+                "that the strategy reads are not implemented there (use slam.raster_backend=torch)"
+            )
         if self._map_grad2d:
             self.map.state["_map_grad2d_sum"] = torch.empty(0, device=device)
             self.map.state["_map_grad2d_n"] = torch.empty(0, device=device)
@@ -127,7 +130,11 @@ class System(Tracking, Mapping, PruneDiagnostics):
         self.track_log: list[tuple[int, float, float, float]] = []
 
     def render(
-        self, w2c: torch.Tensor, stats: bool = False, training: bool = False, iteration: int = 0,
+        self,
+        w2c: torch.Tensor,
+        stats: bool = False,
+        training: bool = False,
+        iteration: int = 0,
         extra: frozenset[str] = frozenset(),
     ) -> RasterOutput:
         g = self.map
@@ -135,8 +142,21 @@ class System(Tracking, Mapping, PruneDiagnostics):
         mask = self.strategy.render_mask(MappingContext(len(self.keyframes), iteration, g, g.state, training))
         if mask is not None:
             op = op * mask
-        return rasterize(g.means, g.log_scales, g.quats, op, g.colors, w2c, self.K, self.W, self.H, stats=stats,
-                         depth_far_m=self.cfg.depth_far_m, backend=self.cfg.raster_backend, extra=extra)
+        return rasterize(
+            g.means,
+            g.log_scales,
+            g.quats,
+            op,
+            g.colors,
+            w2c,
+            self.K,
+            self.W,
+            self.H,
+            stats=stats,
+            depth_far_m=self.cfg.depth_far_m,
+            backend=self.cfg.raster_backend,
+            extra=extra,
+        )
 
     def _phase(self, name: str):
         return self._timer.phase(name) if self._timer is not None else contextlib.nullcontext()
@@ -182,8 +202,9 @@ class System(Tracking, Mapping, PruneDiagnostics):
             result.diag_s += time.perf_counter() - t_fit
             # the map at its largest in the window: after densification, with Adam's moments and
             # (as during each mapping step) a gradient for every parameter
-            result.diag["state_map_bytes"] = self.map.state_bytes() + (sum(
-                p.numel() * p.element_size() for p in self.map.params.values() if p.grad is None) if mapped else 0)
+            result.diag["state_map_bytes"] = self.map.state_bytes() + (
+                sum(p.numel() * p.element_size() for p in self.map.params.values() if p.grad is None) if mapped else 0
+            )
             t2 = time.perf_counter() - result.diag_s  # the fit diagnostics are not mapping time
             with self._phase("pruning"):
                 result.n_pruned, result.n_candidates = self._prune(kf_idx, w2c, depth, result)
@@ -205,16 +226,21 @@ class System(Tracking, Mapping, PruneDiagnostics):
             st = g.optimizer.state.get(group["params"][0])
             if st:
                 moments[group["name"]] = dict(st)
-        prev = None if self._prev_obs is None else [torch.from_numpy(self._prev_obs[0]),
-                                                    torch.from_numpy(self._prev_obs[1])]
+        prev = (
+            None
+            if self._prev_obs is None
+            else [torch.from_numpy(self._prev_obs[0]), torch.from_numpy(self._prev_obs[1])]
+        )
         return {
             "params": {k: p.detach() for k, p in g.params.items()},  # no copies: a checkpoint must not raise the peak
             "requires_grad": {k: p.requires_grad for k, p in g.params.items()},
             "moments": moments,
             "birth_kf": g.birth_kf,
             "state": dict(g.state),
-            "keyframes": {"index": torch.tensor([kf.index for kf in self.keyframes], dtype=torch.long),
-                          "w2c": _stack([kf.w2c for kf in self.keyframes])},  # [K], [K, 4, 4]
+            "keyframes": {
+                "index": torch.tensor([kf.index for kf in self.keyframes], dtype=torch.long),
+                "w2c": _stack([kf.w2c for kf in self.keyframes]),
+            },  # [K], [K, 4, 4]
             "poses": _stack(self.poses),  # [F, 4, 4]
             "frames_since_kf": self.frames_since_kf,
             "bad_frames": self.lost.bad_frames,
@@ -243,8 +269,9 @@ class System(Tracking, Mapping, PruneDiagnostics):
             g.params[name] = new
             if name in sd["moments"]:
                 # Adam keeps "step" on the CPU (unless capturable); the moments live with the parameter
-                g.optimizer.state[new] = {k: v if k == "step" else v.to(self.device)
-                                          for k, v in sd["moments"][name].items()}
+                g.optimizer.state[new] = {
+                    k: v if k == "step" else v.to(self.device) for k, v in sd["moments"][name].items()
+                }
         g.birth_kf = sd["birth_kf"].to(self.device)
         g.state = {k: v.to(self.device) for k, v in sd["state"].items()}
         self.keyframes = []
@@ -274,8 +301,9 @@ class System(Tracking, Mapping, PruneDiagnostics):
         rot_deg = float(so3_log(rel[:3, :3]).norm()) * 57.29578
         return trans > self.cfg.kf_min_trans_m or rot_deg > self.cfg.kf_min_rot_deg
 
-    def _prune(self, kf_idx: int, w2c: torch.Tensor, depth: torch.Tensor,
-               result: FrameResult | None = None) -> tuple[int, int]:
+    def _prune(
+        self, kf_idx: int, w2c: torch.Tensor, depth: torch.Tensor, result: FrameResult | None = None
+    ) -> tuple[int, int]:
         """(Gaussians removed, candidates) after the strategy's keep mask at pose ``w2c``; the
         diagnostics of this prune go to ``result.diag`` (``depth`` [H, W]: the frame's observed depth)."""
         with torch.no_grad():
@@ -285,9 +313,21 @@ class System(Tracking, Mapping, PruneDiagnostics):
         is_new = self.map.birth_kf == kf_idx
         candidates = (out.tile_id >= 0) & ~is_new
         grad2d = (st["_map_grad2d_sum"], st["_map_grad2d_n"]) if self._map_grad2d else None
-        ctx = PruneContext(kf_idx, self.map, st, out, grad_mean, is_new, candidates, self.keep_ratio,
-                           (self.H, self.W), self.prune.target_count, renderer=self._score_views,
-                           mapping_grad2d=grad2d, seed=self.cfg.seed)
+        ctx = PruneContext(
+            kf_idx,
+            self.map,
+            st,
+            out,
+            grad_mean,
+            is_new,
+            candidates,
+            self.keep_ratio,
+            (self.H, self.W),
+            self.prune.target_count,
+            renderer=self._score_views,
+            mapping_grad2d=grad2d,
+            seed=self.cfg.seed,
+        )
         keep = self.strategy.after_mapping(ctx)
         if result is not None and ctx.views_used:
             result.diag["n_score_views"] = len(ctx.views_used)

@@ -32,21 +32,32 @@ class Tracking:
                 K = self.K.double().cpu().numpy()
                 prior = velocity.double().cpu().numpy()
                 inliers: list = []
-                rel, _ = relative_motion(self._prev_obs[0], self._gray, self._prev_obs[1], K, self._flow_cfg, prior,
-                                         rng=self._ransac_rng, inliers_out=inliers if self.cfg.feature_weight else None)
+                rel, _ = relative_motion(
+                    self._prev_obs[0],
+                    self._gray,
+                    self._prev_obs[1],
+                    K,
+                    self._flow_cfg,
+                    prior,
+                    rng=self._ransac_rng,
+                    inliers_out=inliers if self.cfg.feature_weight else None,
+                )
                 if rel is not None:
                     if inliers:
                         c2w_prev = inverse(prev).double()
                         pts = torch.as_tensor(inliers[0], device=prev.device) @ c2w_prev[:3, :3].T + c2w_prev[:3, 3]
-                        self._features = (pts.float(), torch.as_tensor(inliers[1], dtype=torch.float32,
-                                                                        device=prev.device))
+                        self._features = (
+                            pts.float(),
+                            torch.as_tensor(inliers[1], dtype=torch.float32, device=prev.device),
+                        )
                     self.init_source.append("flow_pnp")
                     return torch.as_tensor(rel, dtype=prev.dtype, device=prev.device) @ prev
             self.init_source.append("velocity")
         return velocity @ prev
 
-    def _track(self, frame_index: int, rgb: torch.Tensor, depth: torch.Tensor,
-               init: torch.Tensor | None = None) -> tuple[torch.Tensor, float]:
+    def _track(
+        self, frame_index: int, rgb: torch.Tensor, depth: torch.Tensor, init: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, float]:
         cfg = self.cfg
         iters = cfg.tracking_iters if len(self.poses) >= 2 else cfg.tracking_iters_first
         self._features = None
@@ -157,8 +168,9 @@ class Tracking:
                 sq += p.grad.reshape(len(self.map), -1).pow(2).sum(1)
         return sq.sqrt()  # [N]
 
-    def _on_tracked(self, frame_index: int, out: RasterOutput, grad_norm: torch.Tensor, grad_sum: torch.Tensor,
-                    grad_n: torch.Tensor) -> None:
+    def _on_tracked(
+        self, frame_index: int, out: RasterOutput, grad_norm: torch.Tensor, grad_sum: torch.Tensor, grad_n: torch.Tensor
+    ) -> None:
         """``grad_norm`` [N]: this frame's g_i, as strategies see it; ``grad_sum`` / ``grad_n`` [N]: what
         the core's accumulator (read by pocket's tile budgets as the mean) adds for this frame."""
         st = self.map.state

@@ -27,13 +27,17 @@ def row(run: Path) -> str:
     mean_share = sum(s for _, s in ms) / len(ms)
     last_ms, last_share = ms[-1]
     views = kfs[-1]["n_score_views"] or "0"
-    return (f"| {strategy} | {len(kfs)} | {mean_ms:.0f} | {100 * mean_share:.1f} % | {last_ms:.0f} | "
-            f"{100 * last_share:.1f} % | {views} |")
+    return (
+        f"| {strategy} | {len(kfs)} | {mean_ms:.0f} | {100 * mean_share:.1f} % | {last_ms:.0f} | "
+        f"{100 * last_share:.1f} % | {views} |"
+    )
 
 
 if __name__ == "__main__":
-    print("| strategy | prunes | prune ms (mean) | share of keyframe time (mean) | prune ms (last kf) "
-          "| share (last kf) | views scored (last kf) |")
+    print(
+        "| strategy | prunes | prune ms (mean) | share of keyframe time (mean) | prune ms (last kf) "
+        "| share (last kf) | views scored (last kf) |"
+    )
     print("|---|---|---|---|---|---|---|")
     for arg in sys.argv[1:]:
         print(row(Path(arg)))

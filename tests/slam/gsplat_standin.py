@@ -20,8 +20,21 @@ from bench.slam.raster import covariance3d
 ALPHA_THRESHOLD = 1.0 / 255.0
 
 
-def fully_fused_projection(means, covars, quats, scales, viewmats, Ks, width, height, eps2d=0.3, near_plane=0.01,
-                           far_plane=1e10, packed=False, opacities=None):
+def fully_fused_projection(
+    means,
+    covars,
+    quats,
+    scales,
+    viewmats,
+    Ks,
+    width,
+    height,
+    eps2d=0.3,
+    near_plane=0.01,
+    far_plane=1e10,
+    packed=False,
+    opacities=None,
+):
     assert covars is None and packed
     R, t = viewmats[0, :3, :3], viewmats[0, :3, 3]
     K = Ks[0]
@@ -32,16 +45,18 @@ def fully_fused_projection(means, covars, quats, scales, viewmats, Ks, width, he
     tx = z * torch.clamp(x / z, -(cx / fx + 0.3 * tan_x), (width - cx) / fx + 0.3 * tan_x)
     ty = z * torch.clamp(y / z, -(cy / fy + 0.3 * tan_y), (height - cy) / fy + 0.3 * tan_y)
     zero = torch.zeros_like(z)
-    J = torch.stack([torch.stack([fx / z, zero, -fx * tx / z**2], -1),
-                     torch.stack([zero, fy / z, -fy * ty / z**2], -1)], -2)
+    J = torch.stack(
+        [torch.stack([fx / z, zero, -fx * tx / z**2], -1), torch.stack([zero, fy / z, -fy * ty / z**2], -1)], -2
+    )
     T = J @ R
     cov = T @ covariance3d(torch.log(scales), quats) @ T.transpose(1, 2) + eps2d * torch.eye(2)
     m2 = torch.stack([fx * x / z + cx, fy * y / z + cy], -1)
     det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] ** 2
     conics = torch.stack([cov[:, 1, 1], -cov[:, 0, 1], cov[:, 0, 0]], -1) / det[:, None]
     with torch.no_grad():
-        extend = torch.clamp(torch.sqrt(2 * torch.log(opacities.clamp_min(ALPHA_THRESHOLD) / ALPHA_THRESHOLD)),
-                             max=3.33)
+        extend = torch.clamp(
+            torch.sqrt(2 * torch.log(opacities.clamp_min(ALPHA_THRESHOLD) / ALPHA_THRESHOLD)), max=3.33
+        )
         rx = torch.ceil(extend * torch.sqrt(cov[:, 0, 0]))
         ry = torch.ceil(extend * torch.sqrt(cov[:, 1, 1]))
         ok = (z >= near_plane) & (z <= far_plane) & (det > 0) & (opacities >= ALPHA_THRESHOLD)
@@ -53,8 +68,18 @@ def fully_fused_projection(means, covars, quats, scales, viewmats, Ks, width, he
 
 
 @torch.no_grad()
-def isect_tiles(means2d, radii, depths, tile_size, tile_width, tile_height, packed=False, n_images=None,
-                image_ids=None, gaussian_ids=None):
+def isect_tiles(
+    means2d,
+    radii,
+    depths,
+    tile_size,
+    tile_width,
+    tile_height,
+    packed=False,
+    n_images=None,
+    image_ids=None,
+    gaussian_ids=None,
+):
     tmin = torch.floor((means2d - radii) / tile_size).long()
     tmax = torch.ceil((means2d + radii) / tile_size).long()
     tmin[:, 0].clamp_(0, tile_width), tmin[:, 1].clamp_(0, tile_height)
@@ -77,8 +102,9 @@ def isect_offset_encode(isect_ids, n_images, tile_width, tile_height):
     return (torch.cumsum(counts, 0) - counts).int().reshape(1, tile_height, tile_width)
 
 
-def rasterize_to_pixels(means2d, conics, colors, opacities, width, height, tile_size, isect_offsets, flatten_ids,
-                        packed=False):
+def rasterize_to_pixels(
+    means2d, conics, colors, opacities, width, height, tile_size, isect_offsets, flatten_ids, packed=False
+):
     """Differentiable front-to-back compositing over the pairs, with gsplat's rules (autograd backward)."""
     n_pairs = flatten_ids.numel()
     per_tile = torch.diff(isect_offsets.reshape(-1).long(), append=torch.tensor([n_pairs]))
@@ -107,6 +133,7 @@ def rasterize_to_pixels(means2d, conics, colors, opacities, width, height, tile_
     w = alpha * torch.exp(log_t_excl)  # [P, 256]
     lin = torch.where(valid, py * width + px, torch.full_like(px, width * height)).reshape(-1)
     img = torch.zeros(width * height + 1, colors.shape[1]).index_add(
-        0, lin, (w[:, :, None] * colors[g][:, None, :]).reshape(-1, colors.shape[1]))
+        0, lin, (w[:, :, None] * colors[g][:, None, :]).reshape(-1, colors.shape[1])
+    )
     acc = torch.zeros(width * height + 1).index_add(0, lin, w.reshape(-1))
     return img[:-1].reshape(1, height, width, -1), acc[:-1].reshape(1, height, width, 1)

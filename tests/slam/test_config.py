@@ -59,10 +59,23 @@ def _composed(*overrides: str):
 def test_splatam_preset_is_splatams_densification_and_nothing_else():
     default, splatam = _composed("slam=default").slam, _composed("slam=splatam").slam
     changed = {k for k in vars(default) if getattr(default, k) != getattr(splatam, k)}
-    assert changed == {"name", "densify_stride", "densify_silhouette", "densify_err_median", "densify_color_err",
-                       "densify_sigma_px", "init_opacity"}
-    assert (splatam.name, splatam.densify_stride, splatam.densify_silhouette, splatam.densify_color_err,
-            splatam.densify_sigma_px, splatam.init_opacity) == ("splatam", 1, 0.5, 0.0, 1.0, 0.5)
+    assert changed == {
+        "name",
+        "densify_stride",
+        "densify_silhouette",
+        "densify_err_median",
+        "densify_color_err",
+        "densify_sigma_px",
+        "init_opacity",
+    }
+    assert (
+        splatam.name,
+        splatam.densify_stride,
+        splatam.densify_silhouette,
+        splatam.densify_color_err,
+        splatam.densify_sigma_px,
+        splatam.init_opacity,
+    ) == ("splatam", 1, 0.5, 0.0, 1.0, 0.5)
 
 
 def test_released_experiment_composes_the_released_schedule():

@@ -33,8 +33,9 @@ def _run(seq, strategy: Strategy, keep: float = 0.4) -> tuple[list[FrameResult],
         return decide(ctx)
 
     strategy.after_mapping = recorded
-    cfg = SlamConfig(tracking_iters=3, tracking_iters_first=5, mapping_iters=3, kf_every=1,
-                     lost_min_silhouette_frac=0.0)
+    cfg = SlamConfig(
+        tracking_iters=3, tracking_iters_first=5, mapping_iters=3, kf_every=1, lost_min_silhouette_frac=0.0
+    )
     system = System(cfg, seq.K, seq.height, seq.width, strategy, keep, torch.device("cpu"))
     return [system.step(seq[i]) for i in range(len(seq))], seen
 
@@ -75,9 +76,20 @@ def test_removing_every_old_gaussian_opens_the_pixels_it_covered(seq):
 
 @pytest.mark.slow
 def test_memory_parts_add_up_to_the_peak(tmp_path):
-    cfg = compose(["+strategy=pocket", "dataset.width=48", "dataset.height=32", "dataset.n_frames=7",
-                   "slam.tracking_iters=4", "slam.mapping_iters=4", "slam.refine_iters=0", "eval.lpips=false",
-                   "progress=false", "threads=1"])
+    cfg = compose(
+        [
+            "+strategy=pocket",
+            "dataset.width=48",
+            "dataset.height=32",
+            "dataset.n_frames=7",
+            "slam.tracking_iters=4",
+            "slam.mapping_iters=4",
+            "slam.refine_iters=0",
+            "eval.lpips=false",
+            "progress=false",
+            "threads=1",
+        ]
+    )
     result = run(cfg, out_dir=tmp_path)
     assert result.status == "ok", result.error
     rows = list(csv.DictReader(open(tmp_path / schema.KEYFRAMES_FILE)))

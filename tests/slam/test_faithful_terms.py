@@ -32,8 +32,9 @@ def test_ssim_loss_matches_torchmetrics_away_from_the_border():
     a = torch.rand(40, 56, 3, generator=g)
     b = (a + 0.1 * torch.randn(40, 56, 3, generator=g)).clamp(0, 1)
     ours = ssim_map(a, b)[5:-5, 5:-5]  # [H-10, W-10]
-    _, full = structural_similarity_index_measure(b.permute(2, 0, 1)[None].double(), a.permute(2, 0, 1)[None].double(),
-                                                  data_range=1.0, return_full_image=True)
+    _, full = structural_similarity_index_measure(
+        b.permute(2, 0, 1)[None].double(), a.permute(2, 0, 1)[None].double(), data_range=1.0, return_full_image=True
+    )
     ref = full[0].mean(0)[5:-5, 5:-5]
     assert torch.allclose(ours.double(), ref, atol=1e-4), float((ours.double() - ref).abs().max())
     assert float(dssim(a, a)) == pytest.approx(0.0, abs=1e-6)
@@ -49,8 +50,14 @@ def test_ssim_loss_is_differentiable():
 def test_frontend_hands_over_its_inliers(seq):
     f0, f1 = seq[1], seq[2]
     out: list = []
-    T, n = relative_motion(to_gray_u8(f0.rgb), to_gray_u8(f1.rgb), f0.depth_m.numpy(), seq.K.double().numpy(),
-                           FlowPnpConfig(), inliers_out=out)
+    T, n = relative_motion(
+        to_gray_u8(f0.rgb),
+        to_gray_u8(f1.rgb),
+        f0.depth_m.numpy(),
+        seq.K.double().numpy(),
+        FlowPnpConfig(),
+        inliers_out=out,
+    )
     assert T is not None and len(out) == 2
     pts, uv = out
     assert pts.shape == (n, 3) and uv.shape == (n, 2)
@@ -96,8 +103,7 @@ def test_depth_outlier_mask_drops_a_planted_outlier_and_keeps_pixels_without_dep
     assert keep[mask & (depth > 0)].float().mean() > 0.5
 
 
-@pytest.mark.parametrize("bad", [{"tracking_depth_outlier": 0.5}, {"feature_weight": -1.0},
-                                 {"lambda_ssim_map": 1.5}])
+@pytest.mark.parametrize("bad", [{"tracking_depth_outlier": 0.5}, {"feature_weight": -1.0}, {"lambda_ssim_map": 1.5}])
 def test_bad_values_are_one_line_errors(bad):
     with pytest.raises(ConfigError, match=f"slam.{next(iter(bad))}: expected"):
         SlamConfig(**bad)

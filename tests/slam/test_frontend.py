@@ -25,8 +25,9 @@ def _gt_rel(f0, f1) -> np.ndarray:
 
 
 def _guess(f0, f1, K, prior: np.ndarray | None = None) -> tuple[np.ndarray | None, int]:
-    return relative_motion(to_gray_u8(f0.rgb), to_gray_u8(f1.rgb), f0.depth_m.numpy(), K.double().numpy(),
-                           FlowPnpConfig(), prior)
+    return relative_motion(
+        to_gray_u8(f0.rgb), to_gray_u8(f1.rgb), f0.depth_m.numpy(), K.double().numpy(), FlowPnpConfig(), prior
+    )
 
 
 def test_recovers_synthetic_motion():
@@ -79,20 +80,28 @@ def test_flow_pnp_is_the_default_and_used_on_textured_frames():
 
 def test_system_falls_back_to_velocity_without_corners():
     seq = open_synthetic({"width": 48, "height": 32, "n_frames": 3, "supersample": 1})
-    cfg = SlamConfig(tracking_iters=2, tracking_iters_first=2, mapping_iters=1, tracking_init="flow_pnp",
-                     flow_pnp={"min_inliers": 10_000})
+    cfg = SlamConfig(
+        tracking_iters=2,
+        tracking_iters_first=2,
+        mapping_iters=1,
+        tracking_init="flow_pnp",
+        flow_pnp={"min_inliers": 10_000},
+    )
     s = System(cfg, seq.K, seq.height, seq.width, Strategy(), 0.4, torch.device("cpu"))
     for f in seq:
         s.step(f)
     assert s.init_source == ["velocity", "velocity"]
 
 
-@pytest.mark.parametrize(("kw", "msg"), [
-    ({"tracking_init": "orb"}, "slam.tracking_init: expected one of velocity, flow_pnp, found 'orb'"),
-    ({"flow_pnp": {"corners": 5}}, "slam.flow_pnp: expected a setting among .*, found corners"),
-    ({"flow_pnp": {"min_inliers": "many"}}, "slam.flow_pnp.min_inliers: expected integer, found 'many'"),
-    ({"lrs": {"colour": 0.01}}, "slam.lrs: expected a setting among means.*, found colour"),
-])
+@pytest.mark.parametrize(
+    ("kw", "msg"),
+    [
+        ({"tracking_init": "orb"}, "slam.tracking_init: expected one of velocity, flow_pnp, found 'orb'"),
+        ({"flow_pnp": {"corners": 5}}, "slam.flow_pnp: expected a setting among .*, found corners"),
+        ({"flow_pnp": {"min_inliers": "many"}}, "slam.flow_pnp.min_inliers: expected integer, found 'many'"),
+        ({"lrs": {"colour": 0.01}}, "slam.lrs: expected a setting among means.*, found colour"),
+    ],
+)
 def test_bad_settings_are_named(kw, msg):
     with pytest.raises(ConfigError, match=msg):
         SlamConfig(**kw)

@@ -17,8 +17,14 @@ from bench.slam.system import System
 
 def _system(schedule: str) -> tuple[System, object]:
     seq = open_sequence({"width": 48, "height": 32, "n_frames": 4, "supersample": 1})
-    cfg = SlamConfig(tracking_iters=3, tracking_iters_first=5, mapping_iters=3, kf_every=1,
-                     lost_min_silhouette_frac=0.0, mapping_schedule=schedule)
+    cfg = SlamConfig(
+        tracking_iters=3,
+        tracking_iters_first=5,
+        mapping_iters=3,
+        kf_every=1,
+        lost_min_silhouette_frac=0.0,
+        mapping_schedule=schedule,
+    )
     prune = PruneConfig(target="absolute", n_target=200, every="frame")
     return System(cfg, seq.K, seq.height, seq.width, load_strategy("area", {}), prune, torch.device("cpu")), seq
 
@@ -47,8 +53,10 @@ def test_without_mapping_the_surviving_gaussians_keep_their_values():
     kept = torch.nonzero(old).squeeze(1)
     # which of the first keyframe's Gaussians survived: the ones pruning kept, in order
     first = before["means"]
-    assert all(torch.equal(system.map.params[k][kept], before[k][_survivors(first, system.map.params["means"][kept])])
-               for k in before)
+    assert all(
+        torch.equal(system.map.params[k][kept], before[k][_survivors(first, system.map.params["means"][kept])])
+        for k in before
+    )
 
 
 def _survivors(first: torch.Tensor, kept_means: torch.Tensor) -> torch.Tensor:

@@ -31,8 +31,12 @@ def brute_force(means, log_scales, quats, opac, colors, w2c, K, W, H):
     r = torch.ceil(3 * torch.sqrt(mid + torch.sqrt(torch.clamp(mid * mid - det, min=0.1)))).detach()
     tx, ty = (pix[:, 0] // 16)[:, None], (pix[:, 1] // 16)[:, None]
     md = m2.detach()
-    in_rect = ((tx >= torch.floor((md[:, 0] - r) / 16)) & (tx <= torch.floor((md[:, 0] + r) / 16))
-               & (ty >= torch.floor((md[:, 1] - r) / 16)) & (ty <= torch.floor((md[:, 1] + r) / 16)))
+    in_rect = (
+        (tx >= torch.floor((md[:, 0] - r) / 16))
+        & (tx <= torch.floor((md[:, 0] + r) / 16))
+        & (ty >= torch.floor((md[:, 1] - r) / 16))
+        & (ty <= torch.floor((md[:, 1] + r) / 16))
+    )
     keep = in_rect & (z[None] > 0.05) & (power <= 0) & (alpha >= 1 / 255)
     alpha = alpha * keep
     out_c, out_d, out_a = [], [], []
@@ -127,8 +131,9 @@ def test_per_gaussian_outputs():
     assert (out.hit_count >= 0).all() and out.hit_count.sum() > 0
     assert ((out.max_weight >= 0) & (out.max_weight <= 0.99)).all()
     # a Gaussian well inside the image: analytic area o * 2 pi sqrt(det) ~ exact coverage
-    inside = [i for i in range(len(means)) if 12 < m2[i, 0] < W - 12 and 12 < m2[i, 1] < H - 12
-              and out.radius_px[i] < 10]
+    inside = [
+        i for i in range(len(means)) if 12 < m2[i, 0] < W - 12 and 12 < m2[i, 1] < H - 12 and out.radius_px[i] < 10
+    ]
     for i in inside:
         analytic = o[i] * 2 * math.pi * torch.sqrt(torch.linalg.det(out.cov2d[i]))
         assert abs(analytic - brute[i]) / analytic < 0.05
@@ -150,8 +155,21 @@ def _one_pixel(opac, colors, bg=None, backend="torch", extra=("weight_sum", "top
     log_scales = torch.full((n, 3), math.log(1e-3))
     quats = torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1)
     K = torch.tensor([[10.0, 0, 0], [0, 10.0, 0], [0, 0, 1]])
-    return rasterize(means, log_scales, quats, opac, colors, torch.eye(4), K, 1, 1, background=bg, stats=True,
-                     backend=backend, extra=extra)
+    return rasterize(
+        means,
+        log_scales,
+        quats,
+        opac,
+        colors,
+        torch.eye(4),
+        K,
+        1,
+        1,
+        background=bg,
+        stats=True,
+        backend=backend,
+        extra=extra,
+    )
 
 
 @pytest.mark.parametrize("backend", ["torch", "fused"])

@@ -82,8 +82,11 @@ def test_saturated_tiles_stop_compositing():
     assert (ref.alpha > 0.999).float().mean() > 0.3
     assert_same_images(ref, got)
     target = torch.rand(32, 40, 3, generator=torch.Generator().manual_seed(1))
-    for g, r in zip(grads(params, K, 40, 32, "fused", target, se3_exp(POSE)),
-                    grads(params, K, 40, 32, "torch", target, se3_exp(POSE)), strict=True):
+    for g, r in zip(
+        grads(params, K, 40, 32, "fused", target, se3_exp(POSE)),
+        grads(params, K, 40, 32, "torch", target, se3_exp(POSE)),
+        strict=True,
+    ):
         torch.testing.assert_close(g, r, atol=2e-6, rtol=2e-3)
 
 
@@ -91,8 +94,13 @@ def test_gaussian_straddling_tiles():
     # one wide Gaussian centred on the corner of four tiles
     means = torch.tensor([[0.0, 0.0, 2.0]])
     K = torch.tensor([[30.0, 0, 16.0], [0, 30.0, 16.0], [0, 0, 1]])
-    params = [means, torch.log(torch.tensor([[0.2, 0.15, 0.1]])), torch.tensor([[0.9, 0.1, 0.2, 0.3]]),
-              torch.tensor([0.8]), torch.tensor([[0.2, 0.5, 0.9]])]
+    params = [
+        means,
+        torch.log(torch.tensor([[0.2, 0.15, 0.1]])),
+        torch.tensor([[0.9, 0.1, 0.2, 0.3]]),
+        torch.tensor([0.8]),
+        torch.tensor([[0.2, 0.5, 0.9]]),
+    ]
     ref, got = both(params, K, 32, 32, w2c=torch.eye(4), stats=True)
     assert int(ref.radius_px[0]) > 8
     assert (ref.alpha[:16, :16] > 0.01).any() and (ref.alpha[16:, 16:] > 0.01).any()
@@ -186,8 +194,9 @@ def test_gradients_under_a_loss_mask_match_torch():
         (((out.color - target).abs().sum(-1) + out.depth) * mask).mean().backward()
         return [t.grad for t in leaves] + [xi.grad]
 
-    for name, g, r in zip(["means", "log_scales", "quats", "opacity", "colors", "pose"], masked("fused"),
-                          masked("torch"), strict=True):
+    for name, g, r in zip(
+        ["means", "log_scales", "quats", "opacity", "colors", "pose"], masked("fused"), masked("torch"), strict=True
+    ):
         assert r.abs().max() > 0, name
         torch.testing.assert_close(g, r, atol=2e-6, rtol=2e-3, msg=name)
 
@@ -202,13 +211,16 @@ def test_binning_orders_pairs_as_a_stable_depth_argsort():
 
     g = torch.Generator().manual_seed(3)
     n, tiles_x, tiles_y = 4000, 9, 5
-    for z in (torch.rand(n, generator=g) * 80 + 0.2,  # distinct depths
-              torch.randint(-3, 4, (n,), generator=g).float()):  # mostly ties, negatives and zeros
+    for z in (
+        torch.rand(n, generator=g) * 80 + 0.2,  # distinct depths
+        torch.randint(-3, 4, (n,), generator=g).float(),
+    ):  # mostly ties, negatives and zeros
         z[::7] = torch.where(z[::7] == 0, torch.tensor(-0.0), z[::7])
         x0, y0 = torch.randint(0, tiles_x, (n,), generator=g), torch.randint(0, tiles_y, (n,), generator=g)
         span = torch.randint(0, 3, (n, 2), generator=g)  # 0: an empty (culled) rectangle
-        rect = torch.stack([x0, (x0 + span[:, 0]).clamp(max=tiles_x), y0, (y0 + span[:, 1]).clamp(max=tiles_y)],
-                           -1).to(torch.int32)
+        rect = torch.stack([x0, (x0 + span[:, 0]).clamp(max=tiles_x), y0, (y0 + span[:, 1]).clamp(max=tiles_y)], -1).to(
+            torch.int32
+        )
         tile_start, gid = raster_fused.bin_pairs(rect, z, tiles_x * tiles_y, tiles_x)
         order = torch.argsort(z, stable=True).to(torch.int32).numpy()
         ref_start, ref_gid = binning._bin_pairs(order, rect.numpy(), tiles_x * tiles_y, tiles_x)

@@ -127,7 +127,8 @@ def _gsplat_reason() -> str | None:
 
 cuda_gsplat = pytest.mark.skipif(
     not torch.cuda.is_available() or importlib.util.find_spec("gsplat") is None,
-    reason="needs a CUDA device and gsplat (pip install 'pocketbench[gpu]'); CI has neither")
+    reason="needs a CUDA device and gsplat (pip install 'pocketbench[gpu]'); CI has neither",
+)
 
 
 @cuda_gsplat
@@ -163,6 +164,15 @@ def test_criteria_statistics_on_gsplat_are_one_config_error(monkeypatch):
     monkeypatch.setattr(raster, "resolve_backend", lambda backend, device: "gsplat")
     n = 4
     with pytest.raises(ConfigError, match=r"^slam.raster_backend=gsplat: statistics top1, weight_sum are not "):
-        raster.rasterize(torch.rand(n, 3) + 2, torch.full((n, 3), -3.0), torch.tensor([1.0, 0, 0, 0]).repeat(n, 1),
-                         torch.full((n,), 0.5), torch.rand(n, 3), torch.eye(4), torch.eye(3), 8, 8,
-                         extra=("weight_sum", "top1"))
+        raster.rasterize(
+            torch.rand(n, 3) + 2,
+            torch.full((n, 3), -3.0),
+            torch.tensor([1.0, 0, 0, 0]).repeat(n, 1),
+            torch.full((n,), 0.5),
+            torch.rand(n, 3),
+            torch.eye(4),
+            torch.eye(3),
+            8,
+            8,
+            extra=("weight_sum", "top1"),
+        )

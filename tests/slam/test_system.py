@@ -69,8 +69,15 @@ class _DropAll(Strategy):
 
 def test_new_gaussians_survive_a_strategy_that_drops_everything(seq):
     """The core exempts the Gaussians a keyframe added, whatever the strategy's keep mask says."""
-    s = System(SlamConfig(tracking_iters=2, tracking_iters_first=2, mapping_iters=1, kf_every=1), seq.K, seq.height,
-               seq.width, _DropAll(), 0.4, torch.device("cpu"))
+    s = System(
+        SlamConfig(tracking_iters=2, tracking_iters_first=2, mapping_iters=1, kf_every=1),
+        seq.K,
+        seq.height,
+        seq.width,
+        _DropAll(),
+        0.4,
+        torch.device("cpu"),
+    )
     first = s.step(seq[0])
     assert first.n_added > 0 and len(s.map) == first.n_added  # all new: nothing pruned
     second = s.step(seq[1])
@@ -82,8 +89,14 @@ def mapped_drive():
     """A system that tracked and mapped frames 0-6 of the straight street at 128x80 (keyframes 0, 3, 6), and the
     sequence; frame 11 is five frames past the last keyframe, so its far street end is not mapped yet."""
     seq = open_sequence({"width": 128, "height": 80, "n_frames": 12, "supersample": 1})
-    cfg = SlamConfig(tracking_iters=20, tracking_iters_first=100, mapping_iters=60, lost_patience=1,
-                     tracking_init="velocity", lost_check="depth")
+    cfg = SlamConfig(
+        tracking_iters=20,
+        tracking_iters_first=100,
+        mapping_iters=60,
+        lost_patience=1,
+        tracking_init="velocity",
+        lost_check="depth",
+    )
     s = System(cfg, seq.K, seq.height, seq.width, Strategy(), 0.4, torch.device("cpu"))
     for i in range(7):
         s.step(seq[i])

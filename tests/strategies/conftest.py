@@ -35,8 +35,17 @@ class Scene:
         """The tile a pixel belongs to, by hand."""
         return int(v // 16) * self.TILES_X + int(u // 16)
 
-    def add(self, u: float, v: float, *, z: float = 2.0, sigma_px: float = 0.6, opacity: float = 0.9,
-            grad: float = 1.0, new: bool = False) -> int:
+    def add(
+        self,
+        u: float,
+        v: float,
+        *,
+        z: float = 2.0,
+        sigma_px: float = 0.6,
+        opacity: float = 0.9,
+        grad: float = 1.0,
+        new: bool = False,
+    ) -> int:
         """A Gaussian whose centre projects to pixel (u, v), isotropic with ``sigma_px`` at the image centre."""
         self.rows.append(dict(u=u, v=v, z=z, sigma_px=sigma_px, opacity=opacity, grad=grad, new=new))
         return len(self.rows) - 1
@@ -62,25 +71,30 @@ class Scene:
         means = torch.stack([(u - self.CX) * z / self.FX, (v - self.CY) * z / self.FX, z], -1)  # [N, 3]
         scale = torch.tensor([x["sigma_px"] for x in r]) * z / self.FX  # [N] m
         o = torch.tensor([x["opacity"] for x in r])
-        g.add({
-            "means": means,
-            "log_scales": torch.log(scale)[:, None].repeat(1, 3),
-            "quats": torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(len(r), 1),
-            "opacity_logits": torch.logit(o),
-            "colors": torch.full((len(r), 3), 0.5),
-        }, keyframe=0)
+        g.add(
+            {
+                "means": means,
+                "log_scales": torch.log(scale)[:, None].repeat(1, 3),
+                "quats": torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(len(r), 1),
+                "opacity_logits": torch.logit(o),
+                "colors": torch.full((len(r), 3), 0.5),
+            },
+            keyframe=0,
+        )
         g.birth_kf[torch.tensor([x["new"] for x in r])] = 1  # born in the keyframe being pruned
         return g
 
     def context(self, g: GaussianMap, keep_ratio: float = 0.4, keyframe_index: int = 1) -> PruneContext:
         """The PruneContext the core would build after mapping keyframe ``keyframe_index`` (identity pose)."""
         with torch.no_grad():
-            out = rasterize(g.means, g.log_scales, g.quats, g.opacities, g.colors, torch.eye(4), self.K,
-                            self.W, self.H, stats=True)
+            out = rasterize(
+                g.means, g.log_scales, g.quats, g.opacities, g.colors, torch.eye(4), self.K, self.W, self.H, stats=True
+            )
         is_new = g.birth_kf == keyframe_index
         grads = torch.tensor([x["grad"] for x in self.rows])
-        return PruneContext(keyframe_index, g, g.state, out, grads, is_new, (out.tile_id >= 0) & ~is_new,
-                            keep_ratio, (self.H, self.W))
+        return PruneContext(
+            keyframe_index, g, g.state, out, grads, is_new, (out.tile_id >= 0) & ~is_new, keep_ratio, (self.H, self.W)
+        )
 
     def build(self, strategy: Strategy | None = None, keep_ratio: float = 0.4) -> PruneContext:
         return self.context(self.gaussian_map(strategy), keep_ratio)
@@ -89,8 +103,9 @@ class Scene:
         return TrackingContext(frame_index, ctx.keyframe_index, ctx.gaussians, ctx.state, ctx.raster, grad_norm)
 
 
-def hand_budgets(n_target: int, grads: dict[int, list[float]], b_min: int = 5, b_max: int = 200,
-                 rounding=math.ceil) -> dict[int, int]:
+def hand_budgets(
+    n_target: int, grads: dict[int, list[float]], b_min: int = 5, b_max: int = 200, rounding=math.ceil
+) -> dict[int, int]:
     """B_k = clip(round(N_tar G_k / sum G), B_min, B_max), written out the slow way."""
     g_mean = {k: sum(v) / len(v) for k, v in grads.items()}
     total = sum(g_mean.values())

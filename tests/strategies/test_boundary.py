@@ -42,11 +42,14 @@ class Returns(Strategy):
         return self.out
 
 
-@pytest.mark.parametrize(("out", "found"), [
-    (torch.ones(5, dtype=torch.float32), "torch.float32 [5]"),  # a score, not a mask
-    (torch.ones(4, dtype=torch.bool), "torch.bool [4]"),  # one Gaussian short
-    ([True] * 5, "list"),
-])
+@pytest.mark.parametrize(
+    ("out", "found"),
+    [
+        (torch.ones(5, dtype=torch.float32), "torch.float32 [5]"),  # a score, not a mask
+        (torch.ones(4, dtype=torch.bool), "torch.bool [4]"),  # one Gaussian short
+        ([True] * 5, "list"),
+    ],
+)
 def test_a_malformed_keep_mask_is_a_strategy_error_naming_the_strategy(out, found):
     g = _map(5)
     with pytest.raises(StrategyError) as err:
@@ -92,9 +95,11 @@ def test_every_hook_of_the_contract_is_forwarded_and_checked():
         pass
 
     for hook in public:  # each hook records its call and answers as the base class does
+
         def spy(self, *args, _hook=hook):
             called.append(_hook)
             return getattr(Strategy, _hook)(self, *args)
+
         setattr(Spy, hook, spy)
     g = _map(3)
     wrapped = CheckedStrategy(Spy(), "spy")

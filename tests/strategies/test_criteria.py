@@ -33,12 +33,24 @@ SCALE = (0.1, 0.2, 0.4)  # isotropic, activated
 # view 1: p1 (B alpha 0.9 T 1), (C alpha 0.25 T 0.1); p2 (A 0.6 T 1), (C 0.5 T 0.4)
 # view 2: p3 (A 0.3 T 1), (C 0.5 T 0.7); p4 (A 0.6 T 1), (C 0.5 T 0.4)
 VIEWS = [
-    dict(weight_sum=(0.6, 0.9, 0.225), opacity_t_sum=(0.6, 0.9, 0.25), hit_count=(1, 1, 2),
-         max_weight=(0.6, 0.9, 0.2), top1_count=(1, 1, 0), top1_after_count=(1, 1, 0),
-         alpha_grad_sq=(0.2025, 0.00455625, 0.010625)),
-    dict(weight_sum=(0.9, 0.0, 0.55), opacity_t_sum=(1.2, 0.0, 0.55), hit_count=(2, 0, 2),
-         max_weight=(0.6, 0.0, 0.35), top1_count=(1, 0, 1), top1_after_count=(2, 0, 0),
-         alpha_grad_sq=(0.405, 0.0, 0.040625)),
+    dict(
+        weight_sum=(0.6, 0.9, 0.225),
+        opacity_t_sum=(0.6, 0.9, 0.25),
+        hit_count=(1, 1, 2),
+        max_weight=(0.6, 0.9, 0.2),
+        top1_count=(1, 1, 0),
+        top1_after_count=(1, 1, 0),
+        alpha_grad_sq=(0.2025, 0.00455625, 0.010625),
+    ),
+    dict(
+        weight_sum=(0.9, 0.0, 0.55),
+        opacity_t_sum=(1.2, 0.0, 0.55),
+        hit_count=(2, 0, 2),
+        max_weight=(0.6, 0.0, 0.35),
+        top1_count=(1, 0, 1),
+        top1_after_count=(2, 0, 0),
+        alpha_grad_sq=(0.405, 0.0, 0.040625),
+    ),
 ]
 # the zeroing variant: p3's C at falloff 0.8 (alpha 0.4, w = 0.28 < A's 0.3): C tops no pixel
 VIEW2_ZEROED = {**VIEWS[1], "weight_sum": (0.9, 0.0, 0.48), "top1_count": (2, 0, 0), "max_weight": (0.6, 0.0, 0.28)}
@@ -46,21 +58,40 @@ VIEW2_ZEROED = {**VIEWS[1], "weight_sum": (0.9, 0.0, 0.48), "top1_count": (2, 0,
 
 def raster(stats: dict, n: int = 3) -> RasterOutput:
     """A RasterOutput carrying ``stats`` (the rest empty)."""
-    f = {k: torch.tensor(v, dtype=torch.int64 if k in ("hit_count", "top1_count", "top1_after_count")
-                         else torch.float32) for k, v in stats.items()}
-    base = dict(color=torch.zeros(2, 2, 3), depth=torch.zeros(2, 2), alpha=torch.zeros(2, 2),
-                means2d=torch.zeros(n, 2), cov2d=torch.zeros(n, 2, 2), depths=torch.ones(n),
-                radius_px=torch.ones(n, dtype=torch.long), tile_id=torch.zeros(n, dtype=torch.long), tiles_xy=(1, 1),
-                coverage=torch.zeros(n), hit_count=None, max_weight=None)
+    f = {
+        k: torch.tensor(v, dtype=torch.int64 if k in ("hit_count", "top1_count", "top1_after_count") else torch.float32)
+        for k, v in stats.items()
+    }
+    base = dict(
+        color=torch.zeros(2, 2, 3),
+        depth=torch.zeros(2, 2),
+        alpha=torch.zeros(2, 2),
+        means2d=torch.zeros(n, 2),
+        cov2d=torch.zeros(n, 2, 2),
+        depths=torch.ones(n),
+        radius_px=torch.ones(n, dtype=torch.long),
+        tile_id=torch.zeros(n, dtype=torch.long),
+        tiles_xy=(1, 1),
+        coverage=torch.zeros(n),
+        hit_count=None,
+        max_weight=None,
+    )
     return RasterOutput(**(base | f))
 
 
 def gmap(opacity, scale, strategy) -> GaussianMap:
     n = len(opacity)
     g = GaussianMap(torch.device("cpu"), state_dtypes=strategy.state_spec())
-    g.add({"means": torch.zeros(n, 3), "log_scales": torch.log(torch.tensor(scale))[:, None].repeat(1, 3),
-           "quats": torch.tensor([1.0, 0, 0, 0]).repeat(n, 1), "opacity_logits": torch.logit(torch.tensor(opacity)),
-           "colors": torch.zeros(n, 3)}, keyframe=0)
+    g.add(
+        {
+            "means": torch.zeros(n, 3),
+            "log_scales": torch.log(torch.tensor(scale))[:, None].repeat(1, 3),
+            "quats": torch.tensor([1.0, 0, 0, 0]).repeat(n, 1),
+            "opacity_logits": torch.logit(torch.tensor(opacity)),
+            "colors": torch.zeros(n, 3),
+        },
+        keyframe=0,
+    )
     return g
 
 
@@ -73,9 +104,20 @@ def context(strategy, views=VIEWS, keep_ratio=1 / 3, opacity=OPACITY, scale=SCAL
         assert which == "held_keyframes"
         yield from enumerate(outs)
 
-    return PruneContext(1, g, g.state, outs[0], torch.zeros(n), torch.zeros(n, dtype=torch.bool),
-                        torch.ones(n, dtype=torch.bool), keep_ratio, (2, 2), renderer=renderer,
-                        mapping_grad2d=grad2d, seed=seed)
+    return PruneContext(
+        1,
+        g,
+        g.state,
+        outs[0],
+        torch.zeros(n),
+        torch.zeros(n, dtype=torch.bool),
+        torch.ones(n, dtype=torch.bool),
+        keep_ratio,
+        (2, 2),
+        renderer=renderer,
+        mapping_grad2d=grad2d,
+        seed=seed,
+    )
 
 
 def kept(name, params=None, **kw) -> list[int]:
@@ -195,9 +237,13 @@ def test_keep_mask_follows_the_score(name):
     for _ in range(3):
         hits = torch.randint(0, 5, (n,), generator=gen)
         top = torch.minimum(torch.randint(0, 3, (n,), generator=gen), hits)
-        views.append({k: torch.rand(n, generator=gen).tolist() for k in
-                      ("weight_sum", "opacity_t_sum", "max_weight", "alpha_grad_sq")}
-                     | {"hit_count": hits.tolist(), "top1_count": top.tolist(), "top1_after_count": top.tolist()})
+        views.append(
+            {
+                k: torch.rand(n, generator=gen).tolist()
+                for k in ("weight_sum", "opacity_t_sum", "max_weight", "alpha_grad_sq")
+            }
+            | {"hit_count": hits.tolist(), "top1_count": top.tolist(), "top1_after_count": top.tolist()}
+        )
     opacity = (torch.rand(n, generator=gen) * 0.9 + 0.05).tolist()
     scale = (torch.rand(n, generator=gen) * 0.5 + 0.01).tolist()
     s = load_strategy(name, {})
@@ -242,16 +288,34 @@ def test_trimfat_keep_mask_follows_the_ranks():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["radsplat", "trimfat", "lightgaussian", "minisplatting", "efficientgs",
-                                  "speedysplat"])
+@pytest.mark.parametrize(
+    "name", ["radsplat", "trimfat", "lightgaussian", "minisplatting", "efficientgs", "speedysplat"]
+)
 def test_criterion_runs_end_to_end(name, tmp_path):
     """``+experiment=tiny`` through the CLI: the run ends ok, prunes, and keyframes.csv names the views scored."""
     env = {**os.environ, "PYTHONPATH": f"{REPO}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
-    proc = subprocess.run([sys.executable, "-m", "bench", "+experiment=tiny", f"+strategy={name}",
-                           "dataset.n_frames=4", "slam.mapping_iters=5", "slam.tracking_iters=5",
-                           "slam.refine_iters=0", "threads=1", "progress=false", f"hydra.run.dir={tmp_path}/hydra",
-                           f"out_dir={tmp_path}/run"], cwd=tmp_path, capture_output=True, text=True, timeout=600,
-                          env=env)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "bench",
+            "+experiment=tiny",
+            f"+strategy={name}",
+            "dataset.n_frames=4",
+            "slam.mapping_iters=5",
+            "slam.tracking_iters=5",
+            "slam.refine_iters=0",
+            "threads=1",
+            "progress=false",
+            f"hydra.run.dir={tmp_path}/hydra",
+            f"out_dir={tmp_path}/run",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=env,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert json.loads((tmp_path / "run" / "metrics.json").read_text())["status"] == "ok"
     import csv

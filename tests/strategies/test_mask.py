@@ -129,8 +129,16 @@ def test_ratio_with_delay_one_removes_like_the_other_strategies(scene):
     assert int(keep[idx].sum()) == ctx.n_target == 3
 
 
-@pytest.mark.parametrize("params", [{"gumbel_tau": 0.0}, {"masked_keyframes": 0}, {"masked_keyframes": 1.5},
-                                    {"sparsity_weight": -1.0}, {"select": "top"}])
+@pytest.mark.parametrize(
+    "params",
+    [
+        {"gumbel_tau": 0.0},
+        {"masked_keyframes": 0},
+        {"masked_keyframes": 1.5},
+        {"sparsity_weight": -1.0},
+        {"select": "top"},
+    ],
+)
 def test_mask_rejects_bad_parameters(params):
     with pytest.raises(ConfigError, match=r"strategy 'mask'|strategy\.params\.masked_keyframes: expected an integer"):
         load_strategy("mask", params)

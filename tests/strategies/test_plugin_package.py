@@ -31,8 +31,23 @@ def test_docs_show_the_example_plugin_verbatim():
 def test_installed_plugin_runs_by_name_without_yaml(tmp_path):
     python = str(make_venv(tmp_path / "venv"))  # sees this run's packages; the plugin is installed on its own
     # built with this interpreter's setuptools (a fresh venv's own may lack bdist_wheel), installed in the venv
-    build = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w",
-                            str(tmp_path / "dist"), str(EXAMPLE)], capture_output=True, text=True, timeout=300)
+    build = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "-q",
+            "--no-deps",
+            "--no-build-isolation",
+            "-w",
+            str(tmp_path / "dist"),
+            str(EXAMPLE),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert build.returncode == 0, build.stderr[-2000:]
     wheel = next((tmp_path / "dist").glob("pocketbench_nearest-*.whl"))
     install = subprocess.run([python, "-m", "pip", "install", "-q", "--no-deps", str(wheel)], capture_output=True,

@@ -54,10 +54,13 @@ def test_every_occupied_tile_keeps_at_least_budget_min(scene, budgets):
     assert kept_in(keep, sparse) == 3
 
 
-@pytest.mark.parametrize(("grads", "ceil_b", "floor_b"), [
-    ((1.0, 2.0, 4.0), (6, 11, 21), (5, 10, 20)),  # 36 * G_k / 7 is fractional: rounding matters
-    ((1.0, 1.0, 1.0), (12, 12, 12), (12, 12, 12)),  # 36 / 3 is whole: both agree
-])
+@pytest.mark.parametrize(
+    ("grads", "ceil_b", "floor_b"),
+    [
+        ((1.0, 2.0, 4.0), (6, 11, 21), (5, 10, 20)),  # 36 * G_k / 7 is fractional: rounding matters
+        ((1.0, 1.0, 1.0), (12, 12, 12), (12, 12, 12)),  # 36 / 3 is whole: both agree
+    ],
+)
 def test_ceil_and_floor_differ_only_for_fractional_shares(scene, budgets, grads, ceil_b, floor_b):
     tiles = [(3, 0), (1, 2), (2, 1)]  # ids 3, 9, 6: a swapped x/y or a collapsed tile id moves the budgets
     groups = [scene.add_grid(tx, ty, 30, grad=g) for (tx, ty), g in zip(tiles, grads, strict=True)]
@@ -152,13 +155,16 @@ def test_area_variants_rank_a_bigger_splat_higher(scene, area):
     assert s[big] > s[small] > 0
 
 
-@pytest.mark.parametrize(("params", "needle"), [
-    ({"area": "pixels"}, "area: expected one of exact, analytic, radius, found 'pixels'"),
-    ({"budget_round": "round"}, "budget_round: expected one of ceil, floor, found 'round'"),
-    ({"tile_px": 8}, "tile_px: expected the rasterizer's tile size 16, found 8"),
-    ({"budget_min": 10, "budget_max": 5}, "budget_max: expected an integer >= budget_min (10)"),
-    ({"budget_min": -1}, "budget_min: expected an integer >= 0"),
-])
+@pytest.mark.parametrize(
+    ("params", "needle"),
+    [
+        ({"area": "pixels"}, "area: expected one of exact, analytic, radius, found 'pixels'"),
+        ({"budget_round": "round"}, "budget_round: expected one of ceil, floor, found 'round'"),
+        ({"tile_px": 8}, "tile_px: expected the rasterizer's tile size 16, found 8"),
+        ({"budget_min": 10, "budget_max": 5}, "budget_max: expected an integer >= budget_min (10)"),
+        ({"budget_min": -1}, "budget_min: expected an integer >= 0"),
+    ],
+)
 def test_bad_parameters_raise_one_line_config_errors(params, needle):
     with pytest.raises(ConfigError) as err:
         load_strategy("pocket", params)

@@ -17,10 +17,13 @@ def mixed_scene(scene) -> dict[str, list[int]]:
     """Candidates in four tiles with varied sizes and gradients, Gaussians off-image, and new ones."""
     g = torch.Generator().manual_seed(0)
     groups: dict[str, list[int]] = {}
-    for name, (tx, ty, n, grad) in {"t0": (0, 0, 14, 0.5), "t6": (2, 1, 9, 2.0), "t11": (3, 2, 20, 1.0),
-                                    "t4": (0, 1, 3, 0.1)}.items():
-        groups[name] = scene.add_grid(tx, ty, n, grad=grad,
-                                      sigma_px=float(torch.rand((), generator=g)) * 2 + 0.5)
+    for name, (tx, ty, n, grad) in {
+        "t0": (0, 0, 14, 0.5),
+        "t6": (2, 1, 9, 2.0),
+        "t11": (3, 2, 20, 1.0),
+        "t4": (0, 1, 3, 0.1),
+    }.items():
+        groups[name] = scene.add_grid(tx, ty, n, grad=grad, sigma_px=float(torch.rand((), generator=g)) * 2 + 0.5)
     groups["off"] = [scene.add(-4.0, 20.0), scene.add(20.0, 60.0)]
     groups["new"] = [scene.add(20.0 + i, 20.0, new=True, grad=50.0) for i in range(4)]
     return groups

@@ -16,8 +16,20 @@ from bench.errors import ConfigError, StrategyError
 from bench.slam import strategy as bench_strategy
 from bench.slam.strategy import Strategy, available, load_strategy
 
-BUILT_INS = ["area", "efficientgs", "gradient", "lightgaussian", "mask", "minisplatting", "none", "opacity", "pocket",
-             "radsplat", "speedysplat", "trimfat"]
+BUILT_INS = [
+    "area",
+    "efficientgs",
+    "gradient",
+    "lightgaussian",
+    "mask",
+    "minisplatting",
+    "none",
+    "opacity",
+    "pocket",
+    "radsplat",
+    "speedysplat",
+    "trimfat",
+]
 CONF = Path(__file__).resolve().parents[2] / "bench" / "conf" / "strategy"
 
 
@@ -52,7 +64,8 @@ def test_unknown_parameter_is_a_config_error():
 
 
 def test_third_party_plugin_is_found_through_its_entry_point(tmp_path, monkeypatch):
-    (tmp_path / "myplug.py").write_text(textwrap.dedent('''
+    (tmp_path / "myplug.py").write_text(
+        textwrap.dedent("""
         from dataclasses import dataclass
         from typing import ClassVar
 
@@ -66,7 +79,8 @@ def test_third_party_plugin_is_found_through_its_entry_point(tmp_path, monkeypat
 
             def after_mapping(self, ctx):
                 return top_k_keep(ctx.gaussians.opacities, ctx.candidates, ctx.n_target)
-    '''))
+    """)
+    )
     info = tmp_path / "myplug-0.1.dist-info"
     info.mkdir()
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: myplug\nVersion: 0.1\n")
@@ -90,7 +104,8 @@ def test_third_party_plugin_is_found_through_its_entry_point(tmp_path, monkeypat
         with pytest.raises(Exception) as err:
             compose(["+strategy=mine", "strategy.params.threshold=abc"])
         assert composition_error(err.value, ["+strategy=mine", "strategy.params.threshold=abc"]) == (
-            "strategy 'mine' parameter threshold: expected a number, found 'abc'")
+            "strategy 'mine' parameter threshold: expected a number, found 'abc'"
+        )
     finally:
         sys.modules.pop("myplug", None)
 
@@ -98,10 +113,21 @@ def test_third_party_plugin_is_found_through_its_entry_point(tmp_path, monkeypat
 def test_list_strategies_names_the_literature_criteria_and_their_origin():
     from bench.report.names import LITERATURE
 
-    out = subprocess.run([sys.executable, "-m", "bench.list_strategies"], capture_output=True, text=True, check=True,
-                         cwd=Path(__file__).resolve().parents[2]).stdout
-    authors = {"lightgaussian": "LightGaussian", "radsplat": "RadSplat", "minisplatting": "Mini-Splatting",
-               "efficientgs": "EfficientGS", "speedysplat": "Speedy-Splat", "trimfat": "Trimming the Fat"}
+    out = subprocess.run(
+        [sys.executable, "-m", "bench.list_strategies"],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=Path(__file__).resolve().parents[2],
+    ).stdout
+    authors = {
+        "lightgaussian": "LightGaussian",
+        "radsplat": "RadSplat",
+        "minisplatting": "Mini-Splatting",
+        "efficientgs": "EfficientGS",
+        "speedysplat": "Speedy-Splat",
+        "trimfat": "Trimming the Fat",
+    }
     for name in LITERATURE:
         line = next(ln for ln in out.splitlines() if ln.startswith(f"{name} "))
         assert authors[name] in line and "(" in line, line  # the authors, and the commit read

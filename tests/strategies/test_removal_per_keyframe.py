@@ -45,8 +45,16 @@ def _run(seq, strategy: Strategy, prune: PruneConfig | float = KEEP, **slam) -> 
         return keep
 
     strategy.after_mapping = recorded
-    cfg = SlamConfig(**{"tracking_iters": 3, "tracking_iters_first": 5, "mapping_iters": 3, "kf_every": 1,
-                        "lost_min_silhouette_frac": 0.0, **slam})  # heavy pruning of a tiny map
+    cfg = SlamConfig(
+        **{
+            "tracking_iters": 3,
+            "tracking_iters_first": 5,
+            "mapping_iters": 3,
+            "kf_every": 1,
+            "lost_min_silhouette_frac": 0.0,
+            **slam,
+        }
+    )  # heavy pruning of a tiny map
     system = System(cfg, seq.K, seq.height, seq.width, strategy, prune, torch.device("cpu"))
     results = [system.step(seq[i]) for i in range(len(seq))]
     return results, seen

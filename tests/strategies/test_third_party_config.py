@@ -30,7 +30,7 @@ class KeepNearest(Strategy):
         return top_k_keep(score, ctx.candidates, ctx.n_target)
 '''
 
-SEARCH_PATH = '''
+SEARCH_PATH = """
 from hydra.core.config_search_path import ConfigSearchPath
 from hydra.plugins.search_path_plugin import SearchPathPlugin
 
@@ -38,7 +38,7 @@ from hydra.plugins.search_path_plugin import SearchPathPlugin
 class NearestSearchPath(SearchPathPlugin):
     def manipulate_search_path(self, search_path: ConfigSearchPath) -> None:
         search_path.append(provider="nearest-plugin", path="pkg://nearest_conf")
-'''
+"""
 
 
 @pytest.mark.slow
@@ -56,14 +56,32 @@ def test_third_party_strategy_with_its_own_config(tmp_path):
     (dist / "entry_points.txt").write_text("[pocketbench.strategies]\nnearest = nearest_plugin:KeepNearest\n")
     repo = Path(__file__).resolve().parents[2]  # this checkout's bench, not whichever one is installed
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), str(repo), os.environ.get("PYTHONPATH", "")])}
-    listed = subprocess.run([sys.executable, "-m", "bench.list_strategies"], env=env, capture_output=True,
-                            text=True, timeout=120)
+    listed = subprocess.run(
+        [sys.executable, "-m", "bench.list_strategies"], env=env, capture_output=True, text=True, timeout=120
+    )
     assert "nearest" in listed.stdout and "nearest-plugin" in listed.stdout, listed.stdout + listed.stderr
     run = subprocess.run(
-        [sys.executable, "-m", "bench", "+strategy=nearest", "strategy.params.flip=true", "dataset.width=48",
-         "dataset.height=32", "dataset.n_frames=4", "slam.tracking_iters=4", "slam.mapping_iters=4",
-         "progress=false", "eval.lpips=false", f"hydra.run.dir={tmp_path}/run"],
-        env=env, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+        [
+            sys.executable,
+            "-m",
+            "bench",
+            "+strategy=nearest",
+            "strategy.params.flip=true",
+            "dataset.width=48",
+            "dataset.height=32",
+            "dataset.n_frames=4",
+            "slam.tracking_iters=4",
+            "slam.mapping_iters=4",
+            "progress=false",
+            "eval.lpips=false",
+            f"hydra.run.dir={tmp_path}/run",
+        ],
+        env=env,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert run.returncode == 0, run.stderr[-2000:]
     stored = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert stored["status"] == "ok" and stored["run"]["strategy"] == "nearest"

@@ -38,9 +38,25 @@ class _Project(torch.autograd.Function):
         rect = torch.empty(n, 4, dtype=torch.int32)
         radius_px = torch.empty(n, dtype=torch.int64)
         tile_id = torch.empty(n, dtype=torch.int64)
-        _project_fwd(mw.numpy(), ls.numpy(), q.numpy(), rc.numpy(), tc.numpy(), cam.numpy(), width, height,
-                     np.float32(near_m), tiles_x, tiles_y, m2.numpy(), cov.numpy(), z.numpy(), rect.numpy(),
-                     radius_px.numpy(), tile_id.numpy())
+        _project_fwd(
+            mw.numpy(),
+            ls.numpy(),
+            q.numpy(),
+            rc.numpy(),
+            tc.numpy(),
+            cam.numpy(),
+            width,
+            height,
+            np.float32(near_m),
+            tiles_x,
+            tiles_y,
+            m2.numpy(),
+            cov.numpy(),
+            z.numpy(),
+            rect.numpy(),
+            radius_px.numpy(),
+            tile_id.numpy(),
+        )
         ctx.save_for_backward(mw, ls, q, rc, tc, cam)
         ctx.dims = (width, height)
         ctx.mark_non_differentiable(rect, radius_px, tile_id)
@@ -58,9 +74,24 @@ class _Project(torch.autograd.Function):
         g_means, g_ls, g_q = torch.empty(n, 3), torch.empty(n, 3), torch.empty(n, 4)
         g_pose_rows = torch.empty(n, 12)  # [N, 12]
         gaussians = any(ctx.needs_input_grad[:3])
-        _project_bwd(mw.numpy(), ls.numpy(), q.numpy(), rc.numpy(), tc.numpy(), cam.numpy(), width, height,
-                     g_m2.numpy(), g_cov.numpy(), g_z.numpy(), gaussians, g_means.numpy(), g_ls.numpy(), g_q.numpy(),
-                     g_pose_rows.numpy())
+        _project_bwd(
+            mw.numpy(),
+            ls.numpy(),
+            q.numpy(),
+            rc.numpy(),
+            tc.numpy(),
+            cam.numpy(),
+            width,
+            height,
+            g_m2.numpy(),
+            g_cov.numpy(),
+            g_z.numpy(),
+            gaussians,
+            g_means.numpy(),
+            g_ls.numpy(),
+            g_q.numpy(),
+            g_pose_rows.numpy(),
+        )
         g_pose = torch.zeros(12)
         _sum_rows(g_pose_rows.numpy(), g_pose.numpy())
         g_w2c = torch.zeros(4, 4)
@@ -72,8 +103,16 @@ class _Project(torch.autograd.Function):
 
 
 def project(
-    means: torch.Tensor, log_scales: torch.Tensor, quats: torch.Tensor, w2c: torch.Tensor, K: torch.Tensor,
-    width: int, height: int, near_m: float, tiles_x: int, tiles_y: int,
+    means: torch.Tensor,
+    log_scales: torch.Tensor,
+    quats: torch.Tensor,
+    w2c: torch.Tensor,
+    K: torch.Tensor,
+    width: int,
+    height: int,
+    near_m: float,
+    tiles_x: int,
+    tiles_y: int,
 ) -> tuple[torch.Tensor, ...]:
     """means2d [N, 2], cov [N, 3] (a, b, c), z [N] (differentiable in means, log-scales, quats and the
     pose w2c [4, 4]); rect [N, 4] int32, radius_px [N], tile_id [N] as ``raster._front`` defines them."""
@@ -103,15 +142,37 @@ class _Composite(torch.autograd.Function):
         gp = torch.empty(m2.shape[0], G_SIZE, dtype=torch.float32)  # [N, 16]
         _pack(m2.numpy(), co.numpy(), op.numpy(), ft.numpy(), gp.numpy())
         order, bounds = _schedule(tile_start.numpy(), numba.get_num_threads())
-        _forward(gid.numpy(), tile_start.numpy(), gp.numpy(), width, height, tiles_x, stats, order, bounds,
-                 acc.numpy(), t_final.numpy(), last.numpy(), pair_cov.numpy(), pair_hits.numpy(), pair_maxw.numpy())
+        _forward(
+            gid.numpy(),
+            tile_start.numpy(),
+            gp.numpy(),
+            width,
+            height,
+            tiles_x,
+            stats,
+            order,
+            bounds,
+            acc.numpy(),
+            t_final.numpy(),
+            last.numpy(),
+            pair_cov.numpy(),
+            pair_hits.numpy(),
+            pair_maxw.numpy(),
+        )
         n = m2.shape[0]
         coverage = torch.zeros(n if stats else 0, dtype=torch.float32)
         hit_count = torch.zeros(n if stats else 0, dtype=torch.int64)
         max_weight = torch.zeros(n if stats else 0, dtype=torch.float32)
         if stats:
-            _reduce_stats(gid.numpy(), pair_cov.numpy(), pair_hits.numpy(), pair_maxw.numpy(),
-                          coverage.numpy(), hit_count.numpy(), max_weight.numpy())
+            _reduce_stats(
+                gid.numpy(),
+                pair_cov.numpy(),
+                pair_hits.numpy(),
+                pair_maxw.numpy(),
+                coverage.numpy(),
+                hit_count.numpy(),
+                max_weight.numpy(),
+            )
         del pair_cov, pair_hits, pair_maxw
         ctx.save_for_backward(gp, gid, tile_start, t_final, last)
         ctx.dims = (width, height, tiles_x)
@@ -128,8 +189,21 @@ class _Composite(torch.autograd.Function):
         g_t = torch.zeros(hw) if g_t is None else g_t.contiguous().to(torch.float32)
         pair_grad = torch.empty(gid.shape[0], 10, dtype=torch.float32)  # [P, 10]
         order, bounds = _schedule(tile_start.numpy(), numba.get_num_threads())
-        _backward(gid.numpy(), tile_start.numpy(), gp.numpy(), width, height, tiles_x, order, bounds,
-                  t_final.numpy(), last.numpy(), g_acc.numpy(), g_t.numpy(), pair_grad.numpy())
+        _backward(
+            gid.numpy(),
+            tile_start.numpy(),
+            gp.numpy(),
+            width,
+            height,
+            tiles_x,
+            order,
+            bounds,
+            t_final.numpy(),
+            last.numpy(),
+            g_acc.numpy(),
+            g_t.numpy(),
+            pair_grad.numpy(),
+        )
         grad = torch.zeros(gp.shape[0], 10, dtype=torch.float32)  # [N, 10]
         _reduce_sum(gid.numpy(), pair_grad.numpy(), grad.numpy())
         del pair_grad

@@ -39,8 +39,7 @@ S_SIZE = 10 * NPIX
 # backward state: pixel coordinates, transmittance in front of the visited Gaussian, last
 # contributor, dL/d acc (4), dL/dT_final * T_final, the features accumulated behind the visited
 # Gaussian (4), and the visited Gaussian's w and u (see ``_backward_span``)
-B_X, B_Y, B_TC, B_LK, B_Q0, B_Q1, B_Q2, B_Q3, B_QT, B_B0, B_B1, B_B2, B_B3, B_W, B_U = (
-    _U(j * NPIX) for j in range(15))
+B_X, B_Y, B_TC, B_LK, B_Q0, B_Q1, B_Q2, B_Q3, B_QT, B_B0, B_B1, B_B2, B_B3, B_W, B_U = (_U(j * NPIX) for j in range(15))
 B_SIZE = 15 * NPIX
 # the forward counts a tile's saturated pixels (to stop early) once per this many list entries; an
 # entry after saturation changes nothing, so the period changes no result
@@ -116,7 +115,7 @@ def _aligned_state(size):  # pragma: no cover - compiled
     numba's cache."""
     raw = np.empty(size + ALIGN_F32, np.float32)
     skip = (ALIGN_F32 - (raw.ctypes.data // 4) % ALIGN_F32) % ALIGN_F32
-    return raw[skip:skip + size]
+    return raw[skip : skip + size]
 
 
 @njit(inline="always", **_KERNEL)
@@ -237,8 +236,23 @@ def _coverage_span(st, lo, hi, fx0, fx1, mx, my, a, b, c, o):  # pragma: no cove
 
 
 @njit(parallel=True, **_KERNEL)
-def _forward(gid, tile_start, gp, width, height, tiles_x, stats, order, bounds,
-             acc, t_final, last, pair_cov, pair_hits, pair_maxw):  # pragma: no cover - compiled
+def _forward(
+    gid,
+    tile_start,
+    gp,
+    width,
+    height,
+    tiles_x,
+    stats,
+    order,
+    bounds,
+    acc,
+    t_final,
+    last,
+    pair_cov,
+    pair_hits,
+    pair_maxw,
+):  # pragma: no cover - compiled
     """Front-to-back compositing per tile; fills acc [H*W, 4], t_final [H*W], last [H*W] (pair index).
 
     Each Gaussian of a tile's depth-sorted list updates the rows of its box, one 8-px vector per row
@@ -277,11 +291,29 @@ def _forward(gid, tile_start, gp, width, height, tiles_x, stats, order, bounds,
                 if n_active > 0 and by1 > by0:
                     p_min = gp[g, G_PMIN]
                     for h in range((bx0 - x0) // HALF, (bx1 - x0 + HALF - 1) // HALF):
-                        ry0, ry1 = _rows(mx, my, a, b, c, p_min, max(bx0, x0 + h * HALF),
-                                         min(bx1, x0 + (h + 1) * HALF), by0, by1)
+                        ry0, ry1 = _rows(
+                            mx, my, a, b, c, p_min, max(bx0, x0 + h * HALF), min(bx1, x0 + (h + 1) * HALF), by0, by1
+                        )
                         lo, hi = _span(h, ry0, ry1, y0)
-                        _forward_span(st, lo, hi, _F(bx0), _F(bx1), mx, my, a, b, c, o, p_min, gp[g, G_F0],
-                                      gp[g, G_F0 + 1], gp[g, G_F0 + 2], gp[g, G_F0 + 3], _F(k - s))
+                        _forward_span(
+                            st,
+                            lo,
+                            hi,
+                            _F(bx0),
+                            _F(bx1),
+                            mx,
+                            my,
+                            a,
+                            b,
+                            c,
+                            o,
+                            p_min,
+                            gp[g, G_F0],
+                            gp[g, G_F0 + 1],
+                            gp[g, G_F0 + 2],
+                            gp[g, G_F0 + 3],
+                            _F(k - s),
+                        )
                         if stats:
                             for i in range(lo, hi):
                                 w = st[S_W + i]
@@ -294,8 +326,9 @@ def _forward(gid, tile_start, gp, width, height, tiles_x, stats, order, bounds,
                     det = a * c - b * b
                     if o > _F(0.0) and det > _F(0.0):
                         r2 = _F(-2.0) * COVERAGE_POWER_MIN
-                        cx0, cx1, cy0, cy1 = _box(mx, my, np.sqrt(r2 * c / det) + _F(1.0),
-                                                  np.sqrt(r2 * a / det) + _F(1.0), x0, x1, y0, y1)
+                        cx0, cx1, cy0, cy1 = _box(
+                            mx, my, np.sqrt(r2 * c / det) + _F(1.0), np.sqrt(r2 * a / det) + _F(1.0), x0, x1, y0, y1
+                        )
                         if cy1 > cy0:
                             for h in range((cx0 - x0) // HALF, (cx1 - x0 + HALF - 1) // HALF):
                                 lo, hi = _span(h, cy0, cy1, y0)
@@ -340,8 +373,9 @@ def _backward_span(st, lo, hi, fx0, fx1, mx, my, a, b, c, o, p_min, f0, f1, f2, 
         q0, q1, q2, q3 = st[B_Q0 + i], st[B_Q1 + i], st[B_Q2 + i], st[B_Q3 + i]
         b0, b1, b2, b3 = st[B_B0 + i], st[B_B1 + i], st[B_B2 + i], st[B_B3 + i]
         # d acc / d alpha = f T_before - behind / (1 - alpha); d T_final / d alpha = -T_final / (1 - alpha)
-        g_alpha = (t_before * (q0 * f0 + q1 * f1 + q2 * f2 + q3 * f3)
-                   - inv_one_m * (q0 * b0 + q1 * b1 + q2 * b2 + q3 * b3 + st[B_QT + i]))
+        g_alpha = t_before * (q0 * f0 + q1 * f1 + q2 * f2 + q3 * f3) - inv_one_m * (
+            q0 * b0 + q1 * b1 + q2 * b2 + q3 * b3 + st[B_QT + i]
+        )
         st[B_B0 + i] = b0 + w * f0
         st[B_B1 + i] = b1 + w * f1
         st[B_B2 + i] = b2 + w * f2
@@ -368,13 +402,24 @@ def _backward_span(st, lo, hi, fx0, fx1, mx, my, a, b, c, o, p_min, f0, f1, f2, 
         syy += u * (dy * dy)
         sxy += u * (dx * dy)
     # d power / d mean = (a dx + b dy, b dx + c dy); d power / d(a, b, c) = -(dx^2 / 2, dx dy, dy^2 / 2)
-    return (o * (a * s1 + b * s2), o * (b * s1 + c * s2), _F(-0.5) * o * sxx, -o * sxy, _F(-0.5) * o * syy,
-            go, gf0, gf1, gf2, gf3)
+    return (
+        o * (a * s1 + b * s2),
+        o * (b * s1 + c * s2),
+        _F(-0.5) * o * sxx,
+        -o * sxy,
+        _F(-0.5) * o * syy,
+        go,
+        gf0,
+        gf1,
+        gf2,
+        gf3,
+    )
 
 
 @njit(parallel=True, **_KERNEL)
-def _backward(gid, tile_start, gp, width, height, tiles_x, order, bounds,
-              t_final, last, g_acc, g_t, pair_grad):  # pragma: no cover - compiled
+def _backward(
+    gid, tile_start, gp, width, height, tiles_x, order, bounds, t_final, last, g_acc, g_t, pair_grad
+):  # pragma: no cover - compiled
     """Per tile, its list back to front from the last contributor (3DGS's backward pass), each
     Gaussian over the rows of its box as in ``_forward``.
 
@@ -400,8 +445,9 @@ def _backward(gid, tile_start, gp, width, height, tiles_x, order, bounds,
                 inside = y < y1 and x < x1
                 p = y * width + x if inside else 0
                 # a pixel no gradient reaches (outside tracking's mask, say) adds exact zeros: none walked
-                flows = inside and (g_acc[p, 0] != 0 or g_acc[p, 1] != 0 or g_acc[p, 2] != 0 or g_acc[p, 3] != 0
-                                    or g_t[p] != 0)
+                flows = inside and (
+                    g_acc[p, 0] != 0 or g_acc[p, 1] != 0 or g_acc[p, 2] != 0 or g_acc[p, 3] != 0 or g_t[p] != 0
+                )
                 k_pix = last[p] if flows else -1
                 k_last = max(k_last, k_pix)
                 st[B_LK + i] = _F(k_pix - s) if k_pix >= 0 else _F(-1.0)
@@ -420,11 +466,29 @@ def _backward(gid, tile_start, gp, width, height, tiles_x, order, bounds,
                 a, b, c, o = gp[g, G_A], gp[g, G_B], gp[g, G_C], gp[g, G_O]
                 p_min = gp[g, G_PMIN]
                 for h in range((bx0 - x0) // HALF, (bx1 - x0 + HALF - 1) // HALF):
-                    ry0, ry1 = _rows(mx, my, a, b, c, p_min, max(bx0, x0 + h * HALF),
-                                     min(bx1, x0 + (h + 1) * HALF), by0, by1)
+                    ry0, ry1 = _rows(
+                        mx, my, a, b, c, p_min, max(bx0, x0 + h * HALF), min(bx1, x0 + (h + 1) * HALF), by0, by1
+                    )
                     lo, hi = _span(h, ry0, ry1, y0)
-                    gr = _backward_span(st, lo, hi, _F(bx0), _F(bx1), mx, my, a, b, c, o, p_min, gp[g, G_F0],
-                                        gp[g, G_F0 + 1], gp[g, G_F0 + 2], gp[g, G_F0 + 3], _F(k - s))
+                    gr = _backward_span(
+                        st,
+                        lo,
+                        hi,
+                        _F(bx0),
+                        _F(bx1),
+                        mx,
+                        my,
+                        a,
+                        b,
+                        c,
+                        o,
+                        p_min,
+                        gp[g, G_F0],
+                        gp[g, G_F0 + 1],
+                        gp[g, G_F0 + 2],
+                        gp[g, G_F0 + 3],
+                        _F(k - s),
+                    )
                     for m in range(10):
                         pair_grad[k, m] += gr[m]
 

@@ -92,9 +92,19 @@ def _extra(gid, tile_start, m2, conic, opac, csum, width, height, tiles_x, bg_su
                         pair[k, P_G2] += v * v
 
 
-def extra_stats(means2d: torch.Tensor, conic: torch.Tensor, opac: torch.Tensor, colors: torch.Tensor,
-                gid: torch.Tensor, tile_start: torch.Tensor, width: int, height: int, tiles_x: int,
-                bg_sum: float, grad: bool) -> torch.Tensor:
+def extra_stats(
+    means2d: torch.Tensor,
+    conic: torch.Tensor,
+    opac: torch.Tensor,
+    colors: torch.Tensor,
+    gid: torch.Tensor,
+    tile_start: torch.Tensor,
+    width: int,
+    height: int,
+    tiles_x: int,
+    bg_sum: float,
+    grad: bool,
+) -> torch.Tensor:
     """[V, 5] float32 per Gaussian in view: sum alpha T, sum o T, top-1 pixels by alpha T, top-1 pixels
     by alpha T_after, and (``grad``; else 0) sum (o dI/dalpha)^2."""
     m2 = means2d.detach().float().contiguous().numpy()
@@ -103,7 +113,8 @@ def extra_stats(means2d: torch.Tensor, conic: torch.Tensor, opac: torch.Tensor, 
     cs = colors.detach().float().sum(-1).contiguous().numpy()  # [V] channel sum, the colours as rendered
     pair = torch.zeros(gid.shape[0], N_PAIR, dtype=torch.float32)
     out = torch.zeros(m2.shape[0], N_PAIR, dtype=torch.float32)
-    _extra(gid.numpy(), tile_start.numpy(), m2, co, op, cs, width, height, tiles_x, np.float32(bg_sum), grad,
-           pair.numpy())
+    _extra(
+        gid.numpy(), tile_start.numpy(), m2, co, op, cs, width, height, tiles_x, np.float32(bg_sum), grad, pair.numpy()
+    )
     _reduce_sum(gid.numpy(), pair.numpy(), out.numpy())
     return out

@@ -30,8 +30,21 @@ def _load_from_cache() -> None:
         return
     _cache_checked = True
     try:
-        kernels = (_project_fwd, _project_bwd, _sum_rows, _in_view, _depth_order, _bin_pairs, _pack, _schedule,
-                   _forward, _backward, _reduce_sum, _reduce_stats, _extra)
+        kernels = (
+            _project_fwd,
+            _project_bwd,
+            _sum_rows,
+            _in_view,
+            _depth_order,
+            _bin_pairs,
+            _pack,
+            _schedule,
+            _forward,
+            _backward,
+            _reduce_sum,
+            _reduce_stats,
+            _extra,
+        )
         if all(k._cache._cache_file._load_index() for k in kernels):
             return
     except Exception:  # noqa: BLE001 - a numba without these internals: compile in this process
@@ -39,5 +52,9 @@ def _load_from_cache() -> None:
     root = str(Path(__file__).resolve().parents[3])  # the folder holding the bench package
     env = dict(os.environ, **{_COMPILING_ENV: "1"})
     env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
-    subprocess.run([sys.executable, "-c", "from bench.slam.raster_fused import compile_kernels; compile_kernels()"],
-                   env=env, capture_output=True, check=False)
+    subprocess.run(
+        [sys.executable, "-c", "from bench.slam.raster_fused import compile_kernels; compile_kernels()"],
+        env=env,
+        capture_output=True,
+        check=False,
+    )

@@ -13,18 +13,28 @@ PROJECT_BLOCK = 256  # Gaussians per block of the projection's backward (one set
 
 @njit(cache=True, inline="always")
 def _rotmat(qw, qx, qy, qz):  # pragma: no cover - compiled
-    return (_F(1.0) - _F(2.0) * (qy * qy + qz * qz), _F(2.0) * (qx * qy - qw * qz), _F(2.0) * (qx * qz + qw * qy),
-            _F(2.0) * (qx * qy + qw * qz), _F(1.0) - _F(2.0) * (qx * qx + qz * qz), _F(2.0) * (qy * qz - qw * qx),
-            _F(2.0) * (qx * qz - qw * qy), _F(2.0) * (qy * qz + qw * qx), _F(1.0) - _F(2.0) * (qx * qx + qy * qy))
+    return (
+        _F(1.0) - _F(2.0) * (qy * qy + qz * qz),
+        _F(2.0) * (qx * qy - qw * qz),
+        _F(2.0) * (qx * qz + qw * qy),
+        _F(2.0) * (qx * qy + qw * qz),
+        _F(1.0) - _F(2.0) * (qx * qx + qz * qz),
+        _F(2.0) * (qy * qz - qw * qx),
+        _F(2.0) * (qx * qz - qw * qy),
+        _F(2.0) * (qy * qz + qw * qx),
+        _F(1.0) - _F(2.0) * (qx * qx + qy * qy),
+    )
 
 
 @njit(cache=True, inline="always")
 def _to_camera(means, i, rc, tc):  # pragma: no cover - compiled
     """Camera-frame position of Gaussian i (the backward recomputes it rather than storing it)."""
     mw0, mw1, mw2 = means[i, 0], means[i, 1], means[i, 2]
-    return (rc[0, 0] * mw0 + rc[0, 1] * mw1 + rc[0, 2] * mw2 + tc[0],
-            rc[1, 0] * mw0 + rc[1, 1] * mw1 + rc[1, 2] * mw2 + tc[1],
-            rc[2, 0] * mw0 + rc[2, 1] * mw1 + rc[2, 2] * mw2 + tc[2])
+    return (
+        rc[0, 0] * mw0 + rc[0, 1] * mw1 + rc[0, 2] * mw2 + tc[0],
+        rc[1, 0] * mw0 + rc[1, 1] * mw1 + rc[1, 2] * mw2 + tc[1],
+        rc[2, 0] * mw0 + rc[2, 1] * mw1 + rc[2, 2] * mw2 + tc[2],
+    )
 
 
 @njit(cache=True, inline="always")
@@ -34,8 +44,25 @@ def _jacobian_limits(fx, fy, width, height):  # pragma: no cover - compiled
 
 
 @njit(parallel=True, cache=True)
-def _project_fwd(means, log_scales, quats, rc, tc, cam, width, height, near_m, tiles_x, tiles_y,
-                 m2, cov, z_out, rect, radius_px, tile_id):  # pragma: no cover - compiled
+def _project_fwd(
+    means,
+    log_scales,
+    quats,
+    rc,
+    tc,
+    cam,
+    width,
+    height,
+    near_m,
+    tiles_x,
+    tiles_y,
+    m2,
+    cov,
+    z_out,
+    rect,
+    radius_px,
+    tile_id,
+):  # pragma: no cover - compiled
     """EWA projection as ``raster.project`` computes it, plus culling and the tile rectangle.
 
     cam: (fx, fy, cx, cy); cov [N, 3] = (a, b, c) of the screen covariance incl. the 0.3 px low-pass,
@@ -50,8 +77,11 @@ def _project_fwd(means, log_scales, quats, rc, tc, cam, width, height, near_m, t
         my = fy * py / zs + cy
         m2[i, 0], m2[i, 1] = mx, my
         z_out[i] = pz
-        if not (pz > near_m and abs(mx - cx) < _F(1.3) * _F(0.5) * _F(width)
-                and abs(my - cy) < _F(1.3) * _F(0.5) * _F(height)):
+        if not (
+            pz > near_m
+            and abs(mx - cx) < _F(1.3) * _F(0.5) * _F(width)
+            and abs(my - cy) < _F(1.3) * _F(0.5) * _F(height)
+        ):
             # culled by its centre (behind the near plane or outside the widened frustum): on a long
             # drive most of the map, whose screen covariance nothing reads, so it is left at zero
             cov[i, 0] = cov[i, 1] = cov[i, 2] = _F(0.0)
@@ -104,8 +134,24 @@ def _project_fwd(means, log_scales, quats, rc, tc, cam, width, height, near_m, t
 
 
 @njit(parallel=True, cache=True)
-def _project_bwd(means, log_scales, quats, rc, tc, cam, width, height, g_m2, g_cov, g_z, gaussians,
-                 g_means, g_log_scales, g_quats, g_pose):  # pragma: no cover - compiled
+def _project_bwd(
+    means,
+    log_scales,
+    quats,
+    rc,
+    tc,
+    cam,
+    width,
+    height,
+    g_m2,
+    g_cov,
+    g_z,
+    gaussians,
+    g_means,
+    g_log_scales,
+    g_quats,
+    g_pose,
+):  # pragma: no cover - compiled
     """The chain rule of ``_project_fwd`` per Gaussian; g_pose [N, 12] holds each Gaussian's share of
     d/d(Rc row-major, tc), reduced afterwards in a fixed order. Without ``gaussians`` (tracking: only
     the pose is optimised) the gradients of means, log-scales and quaternions are left unwritten.
@@ -126,8 +172,14 @@ def _project_bwd(means, log_scales, quats, rc, tc, cam, width, height, g_m2, g_c
         gsig = np.empty((3, 3), np.float32)
         grg = np.empty((3, 3), np.float32)
         for i in range(blk * PROJECT_BLOCK, min(n, (blk + 1) * PROJECT_BLOCK)):
-            if (g_m2[i, 0] == 0 and g_m2[i, 1] == 0 and g_cov[i, 0] == 0 and g_cov[i, 1] == 0
-                    and g_cov[i, 2] == 0 and g_z[i] == 0):
+            if (
+                g_m2[i, 0] == 0
+                and g_m2[i, 1] == 0
+                and g_cov[i, 0] == 0
+                and g_cov[i, 1] == 0
+                and g_cov[i, 2] == 0
+                and g_z[i] == 0
+            ):
                 # nothing flows back (out of view: on a long drive most of the map): every product below is 0
                 for k in range(12):
                     g_pose[i, k] = _F(0.0)
@@ -156,8 +208,9 @@ def _project_bwd(means, log_scales, quats, rc, tc, cam, width, height, g_m2, g_c
             qw, qx, qy, qz = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
             qn = max(np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), _F(1e-12))
             nw, nx, ny, nz = qw / qn, qx / qn, qy / qn, qz / qn
-            rg[0, 0], rg[0, 1], rg[0, 2], rg[1, 0], rg[1, 1], rg[1, 2], rg[2, 0], rg[2, 1], rg[2, 2] = \
-                _rotmat(nw, nx, ny, nz)
+            rg[0, 0], rg[0, 1], rg[0, 2], rg[1, 0], rg[1, 1], rg[1, 2], rg[2, 0], rg[2, 1], rg[2, 2] = _rotmat(
+                nw, nx, ny, nz
+            )
             for k in range(3):
                 sc[k] = np.exp(log_scales[i, k])
             for j in range(3):
@@ -178,8 +231,9 @@ def _project_bwd(means, log_scales, quats, rc, tc, cam, width, height, g_m2, g_c
             if gaussians:
                 for j in range(3):
                     for k in range(3):
-                        gsig[j, k] = (t[0, j] * (gs00 * t[0, k] + gs01 * t[1, k])
-                                      + t[1, j] * (gs01 * t[0, k] + gs11 * t[1, k]))
+                        gsig[j, k] = t[0, j] * (gs00 * t[0, k] + gs01 * t[1, k]) + t[1, j] * (
+                            gs01 * t[0, k] + gs11 * t[1, k]
+                        )
                 for k in range(3):
                     gsk = _F(0.0)
                     for j in range(3):
@@ -188,14 +242,39 @@ def _project_bwd(means, log_scales, quats, rc, tc, cam, width, height, g_m2, g_c
                         gsk += gm * rg[j, k]
                     g_log_scales[i, k] = gsk * sc[k]
                 d = grg
-                gw = _F(2.0) * (-nz * d[0, 1] + ny * d[0, 2] + nz * d[1, 0] - nx * d[1, 2] - ny * d[2, 0]
-                                + nx * d[2, 1])
-                gx = _F(2.0) * (ny * d[0, 1] + nz * d[0, 2] + ny * d[1, 0] - _F(2.0) * nx * d[1, 1] - nw * d[1, 2]
-                                + nz * d[2, 0] + nw * d[2, 1] - _F(2.0) * nx * d[2, 2])
-                gy = _F(2.0) * (-_F(2.0) * ny * d[0, 0] + nx * d[0, 1] + nw * d[0, 2] + nx * d[1, 0] + nz * d[1, 2]
-                                - nw * d[2, 0] + nz * d[2, 1] - _F(2.0) * ny * d[2, 2])
-                gz = _F(2.0) * (-_F(2.0) * nz * d[0, 0] - nw * d[0, 1] + nx * d[0, 2] + nw * d[1, 0]
-                                - _F(2.0) * nz * d[1, 1] + ny * d[1, 2] + nx * d[2, 0] + ny * d[2, 1])
+                gw = _F(2.0) * (
+                    -nz * d[0, 1] + ny * d[0, 2] + nz * d[1, 0] - nx * d[1, 2] - ny * d[2, 0] + nx * d[2, 1]
+                )
+                gx = _F(2.0) * (
+                    ny * d[0, 1]
+                    + nz * d[0, 2]
+                    + ny * d[1, 0]
+                    - _F(2.0) * nx * d[1, 1]
+                    - nw * d[1, 2]
+                    + nz * d[2, 0]
+                    + nw * d[2, 1]
+                    - _F(2.0) * nx * d[2, 2]
+                )
+                gy = _F(2.0) * (
+                    -_F(2.0) * ny * d[0, 0]
+                    + nx * d[0, 1]
+                    + nw * d[0, 2]
+                    + nx * d[1, 0]
+                    + nz * d[1, 2]
+                    - nw * d[2, 0]
+                    + nz * d[2, 1]
+                    - _F(2.0) * ny * d[2, 2]
+                )
+                gz = _F(2.0) * (
+                    -_F(2.0) * nz * d[0, 0]
+                    - nw * d[0, 1]
+                    + nx * d[0, 2]
+                    + nw * d[1, 0]
+                    - _F(2.0) * nz * d[1, 1]
+                    + ny * d[1, 2]
+                    + nx * d[2, 0]
+                    + ny * d[2, 1]
+                )
                 dot = nw * gw + nx * gx + ny * gy + nz * gz
                 g_quats[i, 0] = (gw - nw * dot) / qn
                 g_quats[i, 1] = (gx - nx * dot) / qn
@@ -214,8 +293,13 @@ def _project_bwd(means, log_scales, quats, rc, tc, cam, width, height, g_m2, g_c
             gmx, gmy = g_m2[i, 0], g_m2[i, 1]
             g_tx = gj02 * (-fx / zs2)
             g_ty = gj12 * (-fy / zs2)
-            g_zs = (gj00 * (-fx / zs2) + gj02 * (_F(2.0) * fx * tx / (zs2 * zs)) + gj11 * (-fy / zs2)
-                    + gj12 * (_F(2.0) * fy * ty / (zs2 * zs)) - (gmx * fx * px + gmy * fy * py) / zs2)
+            g_zs = (
+                gj00 * (-fx / zs2)
+                + gj02 * (_F(2.0) * fx * tx / (zs2 * zs))
+                + gj11 * (-fy / zs2)
+                + gj12 * (_F(2.0) * fy * ty / (zs2 * zs))
+                - (gmx * fx * px + gmy * fy * py) / zs2
+            )
             gpx = gmx * fx / zs
             gpy = gmy * fy / zs
             if clamp_x:  # tx = +-lim_x zs

@@ -18,8 +18,13 @@ def compile_kernels() -> None:
     n, size, tiles = 64, 64, 4
     g = torch.Generator().manual_seed(0)
     means = torch.cat([torch.rand(n, 2, generator=g) - 0.5, torch.full((n, 1), 3.0)], 1)
-    params = [means, torch.full((n, 3), -3.0), torch.tensor([1.0, 0, 0, 0]).repeat(n, 1), torch.full((n,), 0.8),
-              torch.rand(n, 3, generator=g)]
+    params = [
+        means,
+        torch.full((n, 3), -3.0),
+        torch.tensor([1.0, 0, 0, 0]).repeat(n, 1),
+        torch.full((n,), 0.8),
+        torch.rand(n, 3, generator=g),
+    ]
     K = torch.tensor([[40.0, 0, 32], [0, 40.0, 32], [0, 0, 1]])
     for stats, gaussians in ((False, True), (True, False)):
         m, ls, q, op, col = (p.clone().requires_grad_(gaussians) for p in params)
@@ -29,9 +34,21 @@ def compile_kernels() -> None:
         tile_start, gid = bin_pairs(rect.index_select(0, vis), z.index_select(0, vis), tiles * tiles, tiles)
         feat = torch.cat([col.index_select(0, vis), z.index_select(0, vis)[:, None]], 1)  # [V, 4]
         inv = conic(*cov.index_select(0, vis).unbind(-1))  # [V, 3]
-        acc, t_final, *_ = composite(m2.index_select(0, vis), inv, op.index_select(0, vis), feat, gid, tile_start,
-                                     size, size, tiles, stats)
+        acc, t_final, *_ = composite(
+            m2.index_select(0, vis), inv, op.index_select(0, vis), feat, gid, tile_start, size, size, tiles, stats
+        )
         (acc.sum() + t_final.sum()).backward()
         if stats:  # the pruning criteria's statistics (rasterize(extra=...))
-            extra_stats(m2.index_select(0, vis), inv, op.index_select(0, vis), col.index_select(0, vis), gid,
-                        tile_start, size, size, tiles, 0.0, True)
+            extra_stats(
+                m2.index_select(0, vis),
+                inv,
+                op.index_select(0, vis),
+                col.index_select(0, vis),
+                gid,
+                tile_start,
+                size,
+                size,
+                tiles,
+                0.0,
+                True,
+            )
