@@ -37,6 +37,7 @@ class EfficientGSPruning(RenderCriterion):
         cnt = torch.zeros(len(ctx.gaussians), device=ctx.candidates.device)
         pix = torch.zeros_like(cnt)
         for out in self.views(ctx, ("top1",)):
+            assert out.top1_after_count is not None and out.top1_count is not None  # asked for in extra
             top = (out.top1_after_count if self.eg_weight == "alpha_T_after" else out.top1_count).float()
             cnt += (top > 0).float()
             pix += top

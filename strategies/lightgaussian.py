@@ -59,6 +59,8 @@ class LightGaussianPruning(RenderCriterion):
         imp = torch.zeros(len(ctx.gaussians), device=ctx.candidates.device)
         o = ctx.gaussians.opacities.detach().float()
         for out in self.views(ctx, ("weight_sum",)):
+            # a stats=True render with the extra statistics asked for fills these
+            assert out.opacity_t_sum is not None and out.weight_sum is not None and out.hit_count is not None
             if self.lg_weight == "opacity_T":
                 imp += out.opacity_t_sum.float()
             elif self.lg_weight == "alpha_T":

@@ -45,6 +45,8 @@ class MiniSplattingPruning(RenderCriterion):
         raw = torch.zeros_like(imp)
         area_max = torch.zeros_like(imp)
         for out in self.views(ctx, ("weight_sum", "top1")):
+            # a stats=True render with the extra statistics asked for fills these
+            assert out.weight_sum is not None and out.top1_count is not None and out.hit_count is not None
             w = out.weight_sum.float()
             top = out.top1_count.float()
             raw += w

@@ -37,6 +37,7 @@ class SpeedySplatPruning(RenderCriterion):
     def score(self, ctx: PruneContext) -> torch.Tensor:
         s = torch.zeros(len(ctx.gaussians), device=ctx.candidates.device)
         for out in self.views(ctx, ("alpha_grad_sq",)):
+            assert out.alpha_grad_sq is not None  # asked for in extra
             s += out.alpha_grad_sq.float()
         return s
 

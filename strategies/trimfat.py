@@ -60,6 +60,7 @@ class TrimFatPruning(Criterion):
 
     def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
         g = self.grad(ctx)
+        assert ctx.mapping_grad2d is not None  # grad() raised otherwise
         ctx.state[STATE_SUM0].copy_(ctx.mapping_grad2d[0])
         ctx.state[STATE_N0].copy_(ctx.mapping_grad2d[1])
         o = ctx.gaussians.opacities.detach().float()

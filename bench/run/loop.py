@@ -129,6 +129,7 @@ def run_frames(
                     with parts.probe.paused():
                         milestones.writerow(milestone_row(cfg, parts, drive, out))
                 if res.is_keyframe:
+                    assert res.keyframe_index is not None  # System.step sets it with is_keyframe
                     if cfg.save_maps == "every_keyframe":
                         save_snapshot(out, res.keyframe_index, system.map)
                     metrics["num_keyframes"] = len(drive.windows)
@@ -224,7 +225,8 @@ def write_checkpoint(
 
 def _stack_all(mats: list[torch.Tensor | None]) -> torch.Tensor | list[torch.Tensor | None]:
     """[F, 4, 4] when every frame has one, else the list as it is (frames without ground truth)."""
-    return torch.stack(mats) if mats and all(m is not None for m in mats) else mats
+    present = [m for m in mats if m is not None]
+    return torch.stack(present) if mats and len(present) == len(mats) else mats
 
 
 @torch.no_grad()

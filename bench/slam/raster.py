@@ -349,6 +349,7 @@ def _render_fused(
             stats,
         )
         if stats:
+            assert coverage is not None and hit_count is not None and max_weight is not None  # set when stats
             coverage[vis], hit_count[vis], max_weight[vis] = cov_v, hits_v, maxw_v
         if extra:
             from bench.slam.raster_fused.criteria_stats import extra_stats
@@ -396,9 +397,9 @@ def _render_fused(
         radius_px=ff.radius_px,
         tile_id=ff.tile_id,
         tiles_xy=(ff.tiles_x, ff.tiles_y),
-        coverage=coverage.to(dtype) if stats else None,
+        coverage=coverage.to(dtype) if coverage is not None else None,  # not None exactly when stats
         hit_count=hit_count if stats else None,
-        max_weight=max_weight.to(dtype) if stats else None,
+        max_weight=max_weight.to(dtype) if max_weight is not None else None,
         **ext,
     )
 
@@ -519,6 +520,7 @@ def _render_torch(fr: _Front, opacities, colors, z_paint, bg, width, height, sta
         alpha_parts.append((1.0 - t_final).reshape(-1))
         lin_parts.append(lin)
         if stats:
+            assert coverage is not None and hit_count is not None and max_weight is not None  # set when stats
             with torch.no_grad():
                 valid_pix = pix_valid[tiles][:, :, None].to(dtype)
                 flat_g = gidx[:, None, :].expand_as(w).reshape(-1)

@@ -178,6 +178,7 @@ def rasterize_gsplat(
                 GSPLAT_ALPHA_MAX,
                 strict_stop=True,
             )
+            assert coverage is not None and hit_count is not None and max_weight is not None  # set when stats
             coverage[gid], hit_count[gid], max_weight[gid] = cov_v.to(dtype), hits_v, maxw_v.to(dtype)
     return dict(
         color=render[..., :3] + (1.0 - alpha)[..., None] * bg,

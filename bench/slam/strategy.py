@@ -219,8 +219,9 @@ class CheckedStrategy(Strategy):
 
     def __init__(self, strategy: Strategy, name: str) -> None:
         self.inner, self.name = strategy, name
-        self.description = strategy.description
-        self.reads = frozenset(strategy.reads)
+        # the wrapper carries the wrapped strategy's values per instance, shadowing the class defaults
+        self.description = strategy.description  # type: ignore[misc]
+        self.reads = frozenset(strategy.reads)  # type: ignore[misc]
         unknown = sorted(self.reads - set(EXTRA_STATS) - {READS_MAPPING_GRAD2D})
         if unknown:
             raise StrategyError(

@@ -25,7 +25,7 @@ class _Project(torch.autograd.Function):
     """World Gaussians -> screen (means2d [N, 2], cov [N, 3], z [N]) plus culling and tile rectangles."""
 
     @staticmethod
-    def forward(ctx, means, log_scales, quats, w2c, cam, width, height, near_m, tiles_x, tiles_y):  # type: ignore[override]
+    def forward(ctx, means, log_scales, quats, w2c, cam, width, height, near_m, tiles_x, tiles_y):
         # a Gaussian's projection costs a fraction of a pair's compositing, so it goes parallel later
         set_threads(int(means.shape[0]) // 2)
         mw, ls, q = (t.detach().float().contiguous() for t in (means, log_scales, quats))
@@ -63,7 +63,7 @@ class _Project(torch.autograd.Function):
         return m2, cov, z, rect, radius_px, tile_id
 
     @staticmethod
-    def backward(ctx, g_m2, g_cov, g_z, *_):  # type: ignore[override]
+    def backward(ctx, g_m2, g_cov, g_z, *_):
         mw, ls, q, rc, tc, cam = ctx.saved_tensors
         set_threads(int(mw.shape[0]) // 2)
         width, height = ctx.dims
@@ -98,7 +98,7 @@ class _Project(torch.autograd.Function):
         g_w2c[:3, :3] = g_pose[:9].reshape(3, 3)
         g_w2c[:3, 3] = g_pose[9:]
         if not gaussians:
-            g_means = g_ls = g_q = None
+            return None, None, None, g_w2c, None, None, None, None, None, None
         return g_means, g_ls, g_q, g_w2c, None, None, None, None, None, None
 
 
@@ -125,7 +125,7 @@ class _Composite(torch.autograd.Function):
     """Differentiable compositing of projected Gaussians; per-pixel outputs acc [H*W, 4] and T [H*W]."""
 
     @staticmethod
-    def forward(ctx, means2d, conic, opac, feat, gid, tile_start, width, height, tiles_x, stats):  # type: ignore[override]
+    def forward(ctx, means2d, conic, opac, feat, gid, tile_start, width, height, tiles_x, stats):
         set_threads(int(gid.shape[0]))
         m2 = means2d.detach().contiguous()
         co = conic.detach().contiguous()
@@ -180,7 +180,7 @@ class _Composite(torch.autograd.Function):
         return acc, t_final, coverage, hit_count, max_weight
 
     @staticmethod
-    def backward(ctx, g_acc, g_t, *_):  # type: ignore[override]
+    def backward(ctx, g_acc, g_t, *_):
         gp, gid, tile_start, t_final, last = ctx.saved_tensors
         set_threads(int(gid.shape[0]))
         width, height, tiles_x = ctx.dims

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from llvmlite import ir as llvm_ir
@@ -48,7 +49,7 @@ SATURATION_CHECK = 8
 G_MX, G_MY, G_A, G_B, G_C, G_O, G_F0, G_EX, G_EY, G_PMIN = 0, 1, 2, 3, 4, 5, 6, 10, 11, 12
 G_SIZE = 16
 ALIGN_F32 = 16  # float32s in 64 bytes: a cache line, and an AVX-512 register
-_KERNEL = dict(cache=True, fastmath=True, error_model="numpy")  # numpy's model: no zero-division branch
+_KERNEL: dict[str, Any] = dict(cache=True, fastmath=True, error_model="numpy")  # numpy's model: no zero-division branch
 
 
 @intrinsic
@@ -78,7 +79,8 @@ def _exp(x):  # pragma: no cover - compiled
     p = p * f + _F(1.6666665459e-1)
     p = p * f + _F(5.0000001201e-1)
     p = p * f * f + f + _F(1.0)
-    return p * _bits_to_f32(np.int32(n + _F(127.0)) << np.int32(23))
+    # an @intrinsic is called without its typingctx, which numba supplies; its stub takes it as an argument
+    return p * _bits_to_f32(np.int32(n + _F(127.0)) << np.int32(23))  # type: ignore[call-arg]
 
 
 @njit(parallel=True, **_KERNEL)
@@ -337,14 +339,14 @@ def _forward(
             for y in range(y0, y1):
                 for x in range(x0, x1):
                     p = y * width + x
-                    i = _U((x - x0) // HALF * (NPIX // 2) + (y - y0) * HALF + (x - x0) % HALF)
-                    t_final[p] = st[S_T + i]
-                    k_loc = st[S_LAST + i]
+                    ip = _U((x - x0) // HALF * (NPIX // 2) + (y - y0) * HALF + (x - x0) % HALF)
+                    t_final[p] = st[S_T + ip]
+                    k_loc = st[S_LAST + ip]
                     last[p] = s + int(k_loc) if k_loc >= _F(0.0) else -1
-                    acc[p, 0] = st[S_A0 + i]
-                    acc[p, 1] = st[S_A1 + i]
-                    acc[p, 2] = st[S_A2 + i]
-                    acc[p, 3] = st[S_A3 + i]
+                    acc[p, 0] = st[S_A0 + ip]
+                    acc[p, 1] = st[S_A1 + ip]
+                    acc[p, 2] = st[S_A2 + ip]
+                    acc[p, 3] = st[S_A3 + ip]
 
 
 @njit(inline="always", **_KERNEL)

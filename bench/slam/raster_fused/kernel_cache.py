@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 from bench.slam.raster_fused.binning import _bin_pairs, _depth_order, _in_view
 from bench.slam.raster_fused.compositing import _backward, _forward, _pack, _reduce_stats, _reduce_sum, _schedule
@@ -30,7 +31,7 @@ def _load_from_cache() -> None:
         return
     _cache_checked = True
     try:
-        kernels = (
+        kernels: tuple[Any, ...] = (  # numba dispatchers; their cache internals are untyped
             _project_fwd,
             _project_bwd,
             _sum_rows,

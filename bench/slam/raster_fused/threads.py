@@ -15,7 +15,8 @@ import torch
 # imported numba first. A layer named in NUMBA_THREADING_LAYER still wins.
 _LAYERS = "omp workqueue tbb"
 os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", _LAYERS)
-numba.config.THREADING_LAYER_PRIORITY = os.environ["NUMBA_THREADING_LAYER_PRIORITY"].split()
+# numba.config's settings are set at run time from the environment, not visible to mypy
+numba.config.THREADING_LAYER_PRIORITY = os.environ["NUMBA_THREADING_LAYER_PRIORITY"].split()  # type: ignore[attr-defined]
 # below this many work items a kernel runs on one thread: a parallel region ends at a barrier, and
 # on a loaded machine (a sweep running jobs side by side) waiting there for a descheduled worker
 # costs more than the work itself
@@ -25,4 +26,4 @@ PARALLEL_MIN_ITEMS = 32_768
 def set_threads(n_items: int) -> None:
     """Run the next kernel on as many threads as torch uses (``threads=``), or one for small work."""
     n = torch.get_num_threads() if n_items >= PARALLEL_MIN_ITEMS else 1
-    numba.set_num_threads(max(1, min(n, numba.config.NUMBA_NUM_THREADS)))
+    numba.set_num_threads(max(1, min(n, numba.config.NUMBA_NUM_THREADS)))  # type: ignore[attr-defined]  # set at run time
