@@ -11,9 +11,10 @@ from bench.slam.keyframes import Keyframe
 from bench.slam.losses import dssim
 from bench.slam.se3 import inverse
 from bench.slam.strategy import MappingContext
+from bench.slam.system_state import SystemState
 
 
-class Mapping:
+class Mapping(SystemState):
     """The mapping half of ``System`` (mixed into it): densification and optimisation of the system's map."""
 
     @torch.no_grad()

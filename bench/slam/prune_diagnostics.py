@@ -9,11 +9,12 @@ from bench.metrics.image import region_psnr_db
 from bench.schema import PRUNE_QUARTILE_COLUMNS
 from bench.slam.raster import RasterOutput
 from bench.slam.se3 import inverse
+from bench.slam.system_state import SystemState
 
 REDUNDANT_WEIGHT = 0.05  # a candidate whose blending weight never exceeds this is redundant (reports/fidelity)
 
 
-class PruneDiagnostics:
+class PruneDiagnostics(SystemState):
     """The diagnostics half of ``System`` (mixed into it): read-only renders of the system's map."""
 
     @torch.no_grad()
@@ -44,6 +45,7 @@ class PruneDiagnostics:
         weight quartiles, the redundant candidates (weight never above REDUNDANT_WEIGHT in this view)
         and how many of them were pruned, and the pixels the prune pushed below the densification
         threshold (holes). Costs one extra render, only when something was removed."""
+        assert out.coverage is not None and out.max_weight is not None  # ``out`` is a stats=True render
         cand_cov = out.coverage[candidates].float()  # [C]
         cand_w = out.max_weight[candidates].float()  # [C]
         q = torch.tensor([0.25, 0.5, 0.75], device=cand_cov.device)
@@ -93,7 +95,7 @@ class PruneDiagnostics:
         u, v, z = u[inside], v[inside], z[inside]
         d = depth.cpu().numpy()
         seen = np.abs(d[v, u] - z) < 0.05 * z
-        mask = np.zeros((self.H + 2, self.W + 2), dtype=bool)
+        mask = np.zeros((self.H + 2, self.W + 2), dtype=np.bool_)
         for dy in (0, 1, 2):
             for dx in (0, 1, 2):
                 mask[v[seen] + dy, u[seen] + dx] = True

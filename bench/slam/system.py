@@ -11,7 +11,7 @@ import random
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -51,7 +51,7 @@ class FrameResult:
     map_s: float = 0.0
     prune_s: float = 0.0
     # what pruning removed and what came back (keyframes.csv; bench/schema.py, _prune_diagnostics)
-    diag: dict[str, float | int | None] = field(default_factory=dict)
+    diag: dict[str, Any] = field(default_factory=dict)  # numbers, None, and score_views a str
     diag_s: float = 0.0  # time spent on those diagnostics (inside prune_s)
 
 
@@ -367,7 +367,7 @@ class System(Tracking, Mapping, PruneDiagnostics):
 
 def index_ranges(indices: list[int]) -> str:
     """Sorted indices as ranges, "0-3;5;7-9" (keyframes.csv ``score_views``)."""
-    parts: list[str] = []
+    parts: list[list[int]] = []
     for i in sorted(set(indices)):
         if parts and parts[-1][1] == i - 1:
             parts[-1][1] = i
@@ -391,4 +391,4 @@ def _py_rng_from(state: list) -> tuple:
 
 
 def _np_gen_state(gen: np.random.Generator) -> dict[str, Any]:
-    return gen.bit_generator.state  # a dict of str and int: loads with weights_only=True
+    return cast(dict[str, Any], gen.bit_generator.state)  # a dict of str and int: loads with weights_only=True

@@ -14,9 +14,10 @@ from bench.slam.frontend import relative_motion
 from bench.slam.raster import RasterOutput
 from bench.slam.se3 import inverse, se3_exp
 from bench.slam.strategy import TrackingContext
+from bench.slam.system_state import SystemState
 
 
-class Tracking:
+class Tracking(SystemState):
     """The tracking half of ``System`` (mixed into it): reads and updates its map, poses and frontend state."""
 
     def initial_pose(self) -> torch.Tensor:
@@ -116,6 +117,7 @@ class Tracking:
         w2c = w2c.detach()  # the final iterate: the decayed step size makes it the converged one
         if not torch.isfinite(w2c).all():
             raise TrackingLost(f"tracking lost at frame {frame_index}: pose is not finite")
+        assert out is not None  # the loop ran: tracking_iters and tracking_iters_first are >= 1
         sil_frac = float((out.alpha.detach() > cfg.silhouette_min).float().mean())
         self.track_log.append((frame_index, float(color_l1), sil_frac, float(depth_l1)))
         self.lost.check(frame_index, float(color_l1), sil_frac, float(depth_l1))
