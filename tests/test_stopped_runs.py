@@ -206,3 +206,20 @@ def test_the_report_leaves_a_redos_staging_dir_out(tmp_path: Path) -> None:
         d.mkdir(parents=True)
         (d / "metrics.json").write_text("{}")
     assert find_run_dirs([tmp_path]) == [tmp_path / "a"]
+
+
+def test_a_signal_reported_as_an_extensions_own_error_is_still_a_stop() -> None:
+    """A signal that lands while numba runs Python code of its own (its unpickler inside a jitted call)
+    comes back as ``SystemError`` with the ``Interrupted`` as its cause: the run is stopped, not failed."""
+    from bench.run.signals import Interrupted, signal_behind
+
+    stop = Interrupted(signal.SIGTERM)
+    try:
+        try:
+            raise stop
+        except Interrupted as inner:
+            raise SystemError("CPUDispatcher(<function _schedule>) returned a result with an exception set") from inner
+    except SystemError as exc:
+        assert signal_behind(exc) is stop
+    assert signal_behind(RuntimeError("a real bug")) is None
+    assert signal_behind(stop) is stop

@@ -42,7 +42,14 @@ from bench.run.loop import TRAJ_EST, flushed_rows
 from bench.run.record import RunRecord, is_leftover, owner, promote, read_record, record_refusal, write_text
 from bench.run.resume import redo_reason
 from bench.run.setup import build, describe, open_seq, restore
-from bench.run.signals import Interrupted, Preemption, deferred_signals, held_preemption, raise_on_signals
+from bench.run.signals import (
+    Interrupted,
+    Preemption,
+    deferred_signals,
+    held_preemption,
+    raise_on_signals,
+    signal_behind,
+)
 
 log = logging.getLogger(__name__)
 
@@ -201,8 +208,12 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
     except BenchError as exc:
         status, error, metrics = "failed", str(exc), record["metrics"]
     except Exception as exc:  # unexpected: record it so the sweep goes on, then re-raise for the traceback
-        record.close(status="failed", error=f"{type(exc).__name__}: {exc}".splitlines()[0])
-        raise
+        behind = signal_behind(exc)  # a stop that a C extension reported as its own error
+        if behind is None:
+            record.close(status="failed", error=f"{type(exc).__name__}: {exc}".splitlines()[0])
+            raise
+        n_done = record["metrics"].get("num_frames", 0)
+        status, error, metrics, stop = "interrupted", f"{behind} after {n_done} frames", record["metrics"], behind
     with deferred_signals():  # a second Ctrl-C must not cut the record in half
         record.close(status=status, error=error, metrics=metrics)
         if status != "interrupted":

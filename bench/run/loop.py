@@ -26,7 +26,7 @@ from bench.run.evaluation import evaluate, tracked_c2w
 from bench.run.export import save_snapshot
 from bench.run.record import RunRecord
 from bench.run.setup import RunSetup, inner_strategy
-from bench.run.signals import Interrupted, Preemption
+from bench.run.signals import Interrupted, Preemption, signal_behind
 from bench.slam.se3 import inverse
 from bench.slam.system import FrameResult
 
@@ -146,8 +146,11 @@ def run_frames(
             drive.status, drive.error = "lost", str(exc)
             bar.close(note=f"lost: {exc}")
             log.warning("%s", exc)
-        except Interrupted as exc:  # stopped: the frames done are still a result, not a method failure
-            drive.status, drive.error, drive.stop = "interrupted", f"{exc} after {metrics['num_frames']} frames", exc
+        except (Interrupted, SystemError, RuntimeError) as exc:  # stopped: the frames done are still a result
+            stop = signal_behind(exc)
+            if stop is None:
+                raise
+            drive.status, drive.error, drive.stop = "interrupted", f"{stop} after {metrics['num_frames']} frames", stop
         except BenchError as exc:  # bad data mid-run (a corrupt frame): keep the partial record, failed
             drive.status, drive.error = "failed", f"{exc} (after {metrics['num_frames']} frames)"
         finally:

@@ -31,6 +31,24 @@ class Interrupted(BaseException):
         return 128 + self.signum
 
 
+def signal_behind(exc: BaseException) -> Interrupted | None:
+    """The ``Interrupted`` behind ``exc``, if a signal caused it, else None.
+
+    The handler raises wherever the main thread is, and that may be Python code that a C extension
+    called back (numba's unpickler inside a jitted call, an autograd Function's backward): the extension
+    then reports its own error (``SystemError: ... returned a result with an exception set``), with the
+    ``Interrupted`` as its cause. A stop is still a stop there.
+    """
+    seen: set[int] = set()
+    cur: BaseException | None = exc
+    while cur is not None and id(cur) not in seen:
+        if isinstance(cur, Interrupted):
+            return cur
+        seen.add(id(cur))
+        cur = cur.__cause__ or cur.__context__
+    return None
+
+
 @contextmanager
 def raise_on_signals() -> Iterator[None]:
     """Within the block, SIGINT/SIGTERM raise ``Interrupted`` (main thread only; elsewhere a no-op)."""
