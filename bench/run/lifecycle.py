@@ -101,7 +101,6 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
     if isinstance(cfg, RunConfig):
         cfg = cast(DictConfig, OmegaConf.structured(cfg))  # a dataclass instance makes a DictConfig
     out = Path(out_dir or cfg.out_dir or ".").resolve()
-    metrics_path = out / schema.METRICS_FILE
     try:
         if built is None or built.tree != {k: v for k, v in plain(cfg).items() if k != "hydra"}:
             built = validate(cfg)
@@ -129,28 +128,15 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
             OmegaConf.to_yaml(cfg, resolve=True),
             cfg,
         )
-    record = RunRecord(
-        metrics_path,
-        {
-            "status": "running",
-            "error": None,
-            "run": keys,
-            "determinism": {},
-            "metrics": {},
-            "provenance": {},
-            "owner": owner(),
-        },
-    )
     start: dict[str, Any] | None = None  # the checkpoint a resumed run starts from
     level = logging.INFO  # of the redo line: a warning when a checkpoint was there but unusable
     final = out  # the run dir; a redo of a finished run works in its staging dir until it finishes
-    reason = redo_reason(stored, keys) if conf.resume else "resume=false"
-    if conf.resume and reason is None and stored is not None:  # None: stored holds the same finished run
+    reason = redo_reason(stored, keys) if conf.resume else None  # None with resume: the same finished run
+    if conf.resume and reason is None and stored is not None:
         log.info("skipping %s: completed results of the same config, code and inputs exist", out)
         return RunResult(stored["status"], out, stored.get("metrics", {}), stored.get("error"), skipped=True)
     if stored is not None and stored.get("status") in schema.FINISHED:
         out = out / schema.REDO_DIR
-        record.path = out / schema.METRICS_FILE
         make_out_dir(out)
         staged = _previous(out)  # a redo stopped earlier: its checkpoint lets this one resume
         if conf.resume and staged is not None and redo_reason(staged, keys) is None:
@@ -166,6 +152,18 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
             log.info("resuming %s from frame %d (checkpoint of keyframe %d)", out, start["frame"], start["keyframe"])
         elif stored is not None:
             log.log(level, "redoing %s: %s", final, reason)
+    record = RunRecord(
+        out / schema.METRICS_FILE,
+        {
+            "status": "running",
+            "error": None,
+            "run": keys,
+            "determinism": {},
+            "metrics": {},
+            "provenance": {},
+            "owner": owner(),
+        },
+    )
     job_outputs.keep(final, cfg, out)
     write_text(out / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
     record["checkpoint"] = {
