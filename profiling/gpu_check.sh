@@ -8,6 +8,9 @@
 # less what the steps after it are guaranteed, so a slow step cannot eat the whole call.
 #   OUT=DIR bash profiling/gpu_check.sh [TORCH_LAST_FRAME]
 # TORCH_LAST_FRAME: the torch runs stop at that frame index (default: all frames).
+# EVAL_EVERY: every run scores every N-th frame (default 5). The image metrics run on the CPU in float64
+# (torchmetrics' SSIM and MS-SSIM), a few seconds a frame at 1226x370 even beside an H100, so scoring all
+# 51 frames outlasts the call (reports/gpu/README.md).
 set -u -o pipefail
 OUT=${OUT:-/tmp/gpu_check}
 RUNS=${RUNS:-/tmp/gpu_runs}
@@ -55,7 +58,7 @@ run() {  # NAME CAP RESERVE OVERRIDES...
   shift 3
   stamp "run $name: $*"
   timeout "$cap" python3 -m bench "$@" dataset=kitti dataset.root="$PWD/kitti" seq=06 dataset.downscale=1 threads=8 \
-    hydra.run.dir="$RUNS/$name" >"$RUNS/$name.out" 2>"$RUNS/$name.err"
+    eval.every="${EVAL_EVERY:-5}" hydra.run.dir="$RUNS/$name" >"$RUNS/$name.out" 2>"$RUNS/$name.err"
   stamp "run $name rc=$?"
   tail -n 4 "$RUNS/$name.err"
   python3 profiling/gpu_summary.py "$RUNS/$name" | tee -a "$OUT/summary.txt"

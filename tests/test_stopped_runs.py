@@ -223,3 +223,30 @@ def test_a_signal_reported_as_an_extensions_own_error_is_still_a_stop() -> None:
         assert signal_behind(exc) is stop
     assert signal_behind(RuntimeError("a real bug")) is None
     assert signal_behind(stop) is stop
+
+
+def test_a_stop_during_the_image_metrics_keeps_what_the_run_computed(tmp_path: Path, monkeypatch) -> None:
+    """Scoring images takes minutes at full resolution (float64 SSIM on the CPU): a stop there must not
+    throw away the frame rate, memory, map size and ATE that the run already has."""
+    from hydra import compose, initialize_config_dir
+
+    import bench.metrics.protocol as protocol
+    from bench.cli.entry import CONF_DIR
+    from bench.run.lifecycle import run as run_in_process
+    from bench.run.signals import Interrupted
+
+    def stopped(*args, **kwargs):
+        raise Interrupted(signal.SIGTERM)
+
+    monkeypatch.setattr(protocol, "frame_metrics", stopped)
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=["+experiment=tiny", "dataset.n_frames=4", "progress=false"])
+    with pytest.raises(Interrupted):
+        run_in_process(cfg, out_dir=tmp_path)
+    stored = json.loads((tmp_path / "metrics.json").read_text())
+    m = stored["metrics"]
+    assert stored["status"] == "interrupted"
+    assert m["num_frames"] == 4
+    for key in ("fps", "slam_wall_s", "gaussians_final", "peak_mem_mib", "ate_rmse_m", "path_length_ratio"):
+        assert m.get(key) is not None, key
+    assert m.get("psnr_db") is None  # never computed

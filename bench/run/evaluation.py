@@ -27,20 +27,26 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 
-def finish(cfg: RunConfig, parts: RunSetup, drive: LoopOutcome, out: Path, device: torch.device) -> dict[str, Any]:
+def finish(
+    cfg: RunConfig,
+    parts: RunSetup,
+    drive: LoopOutcome,
+    out: Path,
+    device: torch.device,
+    metrics: dict[str, Any] | None = None,
+) -> dict[str, Any]:
     """After the loop (none of it SLAM time): refine, summarise memory and time, evaluate, plot.
 
     A stopped or failed run (``partial``) skips refinement, rendering and the density figure: the
-    trajectory metrics over the frames done are what it can still say.
+    trajectory metrics over the frames done are what it can still say. Every figure goes into
+    ``metrics`` as soon as it is known, so a stop during refinement or the image metrics (minutes at
+    full resolution) keeps the frame rate, memory, map size and ATE that were already computed.
     """
     system, timer = parts.system, parts.timer
     partial = drive.status in ("interrupted", "failed")
     n_done = len(drive.timestamps_s)
-    metrics: dict[str, Any] = {"slam_wall_s": round(drive.loop_s, 3), "warmup_s": round(drive.warmup_s, 3)}
-    if cfg.slam.refine_iters > 0 and not partial:
-        with timer.phase("refine"), Phase("refine", cfg.slam.refine_iters, "iteration", cfg.progress) as bar:
-            system.refine(cfg.slam.refine_iters, on_step=bar.update)
-        metrics["refine_s"] = round(timer.totals()["refine"], 3)
+    metrics = {} if metrics is None else metrics
+    metrics.update({"slam_wall_s": round(drive.loop_s, 3), "warmup_s": round(drive.warmup_s, 3)})
     warmup = cfg.warmup_frames
     metrics["fps"] = round((n_done - warmup) / drive.loop_s, 4) if drive.loop_s > 0 and n_done > warmup else None
     # per-phase seconds of the frame loop, warm-up frames included: they sum to about
@@ -54,9 +60,13 @@ def finish(cfg: RunConfig, parts: RunSetup, drive: LoopOutcome, out: Path, devic
     metrics["gaussians_pruned_total"] = sum(w["n_pruned"] for w in drive.windows)
     metrics["prune_candidates_total"] = sum(w["n_candidates"] for w in drive.windows)
     metrics["keep_ratio"] = parts.keys["keep_ratio"]  # as in run.keep_ratio: null when nothing is pruned
+    if cfg.slam.refine_iters > 0 and not partial:
+        with timer.phase("refine"), Phase("refine", cfg.slam.refine_iters, "iteration", cfg.progress) as bar:
+            system.refine(cfg.slam.refine_iters, on_step=bar.update)
+        metrics["refine_s"] = round(timer.totals()["refine"], 3)
     est_c2w = tracked_c2w(system, n_done)
     t_eval = time.perf_counter()
-    metrics.update(evaluate(cfg, out, parts, est_c2w, drive, device, images=not partial))
+    metrics.update(evaluate(cfg, out, parts, est_c2w, drive, device, images=not partial, into=metrics))
     metrics["eval_s"] = round(time.perf_counter() - t_eval, 3)  # ATE, rendering, PSNR/SSIM/LPIPS
     from bench.report.figures.run_memory import memory_timeline
 
@@ -99,6 +109,7 @@ def evaluate(
     device: torch.device,
     images: bool = True,
     write_gt: bool = True,
+    into: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """ATE (evo), path-length ratio, PSNR/SSIM/MS-SSIM (torchmetrics), LPIPS when weights exist; none of
     it is SLAM time.
@@ -106,7 +117,8 @@ def evaluate(
     The image metrics are scored under ``eval.protocol`` (``bench.metrics.protocol``): the whole image,
     or the pixels SplaTAM's valid-depth mask or the released code's silhouette mask keeps.
     ``images=False`` (a stopped or failed run) skips rendering: the trajectory metrics only.
-    traj_est.txt is already on disk, appended frame by frame.
+    traj_est.txt is already on disk, appended frame by frame. ``into`` gets the trajectory metrics
+    before any frame is rendered, so a stop during the image metrics keeps them.
     """
     from bench.metrics.lpips import LPIPS
     from bench.metrics.protocol import frame_metrics, mean_metrics, protocol_mask
@@ -138,6 +150,8 @@ def evaluate(
         res["path_length_ratio"] = None if ratio is None else round(ratio, 5)
         if ev.rpe:
             res.update(rpe(est, gt, align=ev.ate_align, max_diff_s=ev.max_diff_s))
+    if into is not None:
+        into.update(res)
     if not images:
         return res
     idx = list(range(0, len(est_c2w), max(1, ev.every)))

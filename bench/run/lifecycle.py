@@ -292,7 +292,7 @@ def _execute(
             parts.viz.written = [p for p in sorted(out.glob("pruned_kf*.npz")) if _kf_of(p) <= start["keyframe"]]
     drive = loop.run_frames(cfg, parts, out, record, start, preempt)
     with deferred_signals() if drive.stop is not None else contextlib.nullcontext():
-        metrics.update(evaluation.finish(cfg, parts, drive, out, device))
+        evaluation.finish(cfg, parts, drive, out, device, metrics)
         metrics["wall_s"] = round(time.perf_counter() - t_start, 3)  # the whole run: loading to figures
     return drive.status, drive.error, metrics, drive.stop
 
