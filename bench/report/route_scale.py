@@ -260,7 +260,7 @@ def _answer(one: pd.DataFrame, found: list[Variant], by_path: dict[str, pd.DataF
     strategy among those."""
     frames = _milestone_frames(one, by_path)
     rows = _variant_rows(one, found)
-    bases = {v.slam_preset: vr for v, vr in rows if v.strategy == baseline}
+    bases = {v.slam_preset: vr for v, vr in rows if v.strategy == baseline and not v.memory_policy}
     if not frames or not bases:
         return ["No baseline runs at the milestones: no answer.", ""]
     last = frames[-1]
@@ -270,15 +270,17 @@ def _answer(one: pd.DataFrame, found: list[Variant], by_path: dict[str, pd.DataF
         "higher PSNR) and within it on the other, so accuracy is kept too; 'no' = worse beyond the noise on "
         "either; peak = the headline peak over the drive.",
         "",
-        "| method | seeds ok | ATE m | PSNR dB | peak MiB | against baseline |",
-        "|---|---|---|---|---|---|",
+        "| method | seeds ok | ATE m | PSNR dB | peak MiB | peak / baseline's | against baseline |",
+        "|---|---|---|---|---|---|---|",
     ]
     best: dict[str, dict[str, tuple[float, str]]] = {}  # preset -> strategy -> (smallest peak keeping accuracy, label)
     for variant, vr in rows:
         ate, psnr = _at(by_path, vr, last, "ate_rmse_m"), _at(by_path, vr, last, "psnr_db")
         peak = _at(by_path, vr, last, "peak_mem_mib")
         base = bases.get(variant.slam_preset)
-        if variant.strategy == baseline:
+        base_peak = _at(by_path, base, last, "peak_mem_mib") if base is not None else []
+        ratio = f"x{statistics.fmean(peak) / statistics.fmean(base_peak):.2f}" if peak and base_peak else "-"
+        if variant.strategy == baseline and not variant.memory_policy:
             verdict = "(baseline)"
         elif base is None:
             verdict = "n/a (no baseline of this preset)"
@@ -293,7 +295,7 @@ def _answer(one: pd.DataFrame, found: list[Variant], by_path: dict[str, pd.DataF
             mine.setdefault(variant.strategy, (float("nan"), ""))
         lines.append(
             f"| {variant.label} | {len(ate)} | {_fmt(*_mean_std(ate), 3)} | {_fmt(*_mean_std(psnr), 2)} | "
-            f"{_fmt(*_mean_std(peak), 1)} | {verdict} |"
+            f"{_fmt(*_mean_std(peak), 1)} | {ratio} | {verdict} |"
         )
     lines += [
         "",

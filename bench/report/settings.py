@@ -37,8 +37,46 @@ def _lookup(cfg: dict[str, Any], dotted: str) -> Any:
     return node
 
 
+# Config groups of the memory policies (issue 44): a run whose values there differ from SlamConfig's
+# defaults measured another system than today's, so its rows never pool with today's runs.
+POLICY_SECTIONS: tuple[str, ...] = ("keyframes", "densify", "residency")
+
+
+def _flat(prefix: str, node: Any) -> dict[str, Any]:
+    if isinstance(node, dict):
+        out: dict[str, Any] = {}
+        for key, value in node.items():
+            out.update(_flat(f"{prefix}.{key}", value))
+        return out
+    return {prefix: node}
+
+
+def policy_label(slam: Any) -> str:
+    """The memory policy a run's ``slam`` config names: every key of ``POLICY_SECTIONS`` whose value
+    differs from ``SlamConfig``'s default, as ``section.key=value`` joined by ", "; "" for today's
+    policy (every key at its default, or a config from before the sections existed)."""
+    import dataclasses
+
+    from bench.slam.config import SlamConfig
+
+    defaults = SlamConfig()
+    if not isinstance(slam, dict):
+        return ""
+    changed = []
+    for section in POLICY_SECTIONS:
+        default = getattr(defaults, section, None)
+        if section not in slam or not dataclasses.is_dataclass(default) or isinstance(default, type):
+            continue
+        base = _flat(section, dataclasses.asdict(default))
+        for key, value in _flat(section, slam[section]).items():
+            if key not in base or value != base[key]:
+                changed.append(f"{key}={value}")
+    return ", ".join(changed)
+
+
 def read_settings(run_dir: Path, device: str | None) -> dict[str, Any]:
-    """The ``SETTING_KEYS`` of one run (None where its config lacks a key or has no config).
+    """The ``SETTING_KEYS`` of one run (None where its config lacks a key or has no config), and its
+    ``memory_policy`` (``policy_label``).
 
     ``slam.raster_backend=auto`` is written as the backend it chose on the run's device, because
     ``auto`` means different kernels on CPU and CUDA.
@@ -48,8 +86,9 @@ def read_settings(run_dir: Path, device: str | None) -> dict[str, Any]:
     except (OSError, yaml.YAMLError):
         cfg = None
     if not isinstance(cfg, dict):
-        return dict.fromkeys(SETTING_KEYS)
+        return {**dict.fromkeys(SETTING_KEYS), "memory_policy": None}
     row = {key: _lookup(cfg, key) for key in SETTING_KEYS}
+    row["memory_policy"] = policy_label(cfg.get("slam"))
     if row["slam.raster_backend"] == "auto" and device:
         chosen = "fused" if str(device).startswith("cpu") else "torch"
         row["slam.raster_backend"] = f"auto ({chosen})"
@@ -83,7 +122,9 @@ def settings_markdown(runs: pd.DataFrame) -> str:
 
 
 # what one table cell pools (a table holds one eval.protocol: bench.report.tables.build_tables)
-POOL_KEYS: tuple[str, ...] = ("dataset", "seq", "strategy", "keep_ratio", "slam_preset", "eval_protocol")
+POOL_KEYS: tuple[str, ...] = (
+    "dataset", "seq", "strategy", "keep_ratio", "slam_preset", "memory_policy", "eval_protocol",
+)  # fmt: skip
 
 
 def mixed_settings(runs: pd.DataFrame) -> list[str]:
@@ -94,7 +135,7 @@ def mixed_settings(runs: pd.DataFrame) -> list[str]:
     if runs.empty or not keys:
         return []
     warnings = []
-    for cell, group in runs.groupby(list(POOL_KEYS), dropna=False, sort=True):
+    for cell, group in runs.groupby([k for k in POOL_KEYS if k in runs], dropna=False, sort=True):
         differ = [f"{k} ({_values(group[k])})" for k in keys if len({str(v) for v in group[k]}) > 1]
         if differ:
             name = "/".join("-" if pd.isna(v) else str(v) for v in cell)

@@ -89,7 +89,7 @@ def test_each_preset_is_judged_against_its_own_baseline() -> None:
     one = pd.DataFrame(rows)
     text = "\n".join(_answer(one, variants(one), by_path, "none"))
     verdicts = {
-        line.split("|")[1].strip(): line.split("|")[6].strip()
+        line.split("|")[1].strip(): line.split("|")[7].strip()
         for line in text.splitlines()
         if line.startswith("| ") and "[" in line
     }
@@ -130,10 +130,46 @@ def test_a_strategy_better_than_its_baseline_keeps_accuracy_and_a_worse_one_does
     one = pd.DataFrame(rows)
     text = "\n".join(_answer(one, variants(one), by_path, "none"))
     verdicts = {
-        line.split("|")[1].strip(): line.split("|")[6].strip()
+        line.split("|")[1].strip(): line.split("|")[7].strip()
         for line in text.splitlines()
         if line.startswith("| ") and "---" not in line and "method" not in line
     }
     assert verdicts["LightGaussian"] == "better (ATE)"
     assert verdicts["Ours (w/o Tile Budget)"] == "no"
     assert "LightGaussian: 55.0 MiB" in text and "Ours (w/o Tile Budget): none" in text
+
+
+def test_a_memory_policy_is_its_own_row_judged_against_todays_baseline():
+    """Runs under another memory policy (issue 44) never pool with today's: the unpruned run under a
+    compact keyframe store is a row of its own, judged against today's unpruned baseline, with its peak's
+    ratio to the baseline's."""
+    rows, by_path = [], {}
+    values = {("none", ""): (0.50, 20.0, 100.0), ("none", "keyframes.precision=compact"): (0.50, 20.0, 60.0)}
+    for (strategy, policy), (ate, psnr, peak) in values.items():
+        for seed, jitter in ((0, -0.01), (1, 0.01)):
+            path = f"{strategy}_{policy}_{seed}"
+            rows.append(
+                {
+                    "path": path,
+                    "status": "ok",
+                    "strategy": strategy,
+                    "slam_preset": "default",
+                    "memory_policy": policy,
+                    "seed": seed,
+                    "keep_ratio": None,
+                }
+            )
+            by_path[path] = pd.DataFrame(
+                {"frames": [400], "ate_rmse_m": [ate + jitter], "psnr_db": [psnr + jitter], "peak_mem_mib": [peak]}
+            )
+    one = pd.DataFrame(rows)
+    found = variants(one)
+    assert [v.label for v in found] == ["LSG-SLAM baseline", "LSG-SLAM baseline + keyframes.precision=compact"]
+    text = "\n".join(_answer(one, found, by_path, "none"))
+    cells = {
+        line.split("|")[1].strip(): [c.strip() for c in line.split("|")[6:8]]
+        for line in text.splitlines()
+        if line.startswith("| LSG")
+    }
+    assert cells["LSG-SLAM baseline"] == ["x1.00", "(baseline)"]
+    assert cells["LSG-SLAM baseline + keyframes.precision=compact"] == ["x0.60", "yes"]
