@@ -159,3 +159,23 @@ def test_bad_values_are_one_line(densify, message):
     with pytest.raises(ConfigError) as err:
         SlamConfig(densify=densify)
     assert str(err.value).startswith(message) and "\n" not in str(err.value)
+
+
+def test_a_resumed_run_keeps_the_budget_curve(seq):
+    """The taming curve's start (the map after keyframe 0) and the seed sample's generator are checkpointed."""
+    import io
+
+    densify = {"cap": 500, "budget": "taming", "final_count": 450, "final_keyframe": 3}
+    straight, _ = _drive(seq, load_strategy("pocket", {}), **densify)
+    first = _system(seq, load_strategy("pocket", {}), **densify)
+    for i in range(2):
+        first.step(seq[i])
+    buf = io.BytesIO()
+    torch.save(first.state_dict(), buf)
+    buf.seek(0)
+    resumed = _system(seq, load_strategy("pocket", {}), **densify)
+    resumed.load_state_dict(torch.load(buf, weights_only=True), lambda i: seq[i])
+    assert resumed._densify_start == first._densify_start is not None
+    for i in range(2, len(seq)):
+        resumed.step(seq[i])
+    assert torch.equal(resumed.map.means, straight.map.means)
