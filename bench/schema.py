@@ -54,6 +54,17 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
     Field("n_gaussians", "", "Gaussians after pruning"),
     Field("n_masked", "", "Gaussians kept in memory but hidden from rendering"),
     Field("n_added", "", "Gaussians added by this keyframe's mapping"),
+    Field(
+        "n_densify_dropped",
+        "",
+        "candidate seeds this keyframe's densification left out for its budget and the cap (`slam.densify`)",
+    ),
+    Field(
+        "n_cap_removed",
+        "",
+        "Gaussians removed before this keyframe's seeds to hold the map at `slam.densify.cap`, lowest "
+        "strategy score first (not in `n_pruned`)",
+    ),
     Field("n_pruned", "", "Gaussians removed by the strategy (with `prune.every=frame`: since the last keyframe)"),
     Field("n_candidates", "", "Gaussians the strategy could prune (in view, not new), over those prune calls"),
     Field("state_bytes", "B", "exact bytes of Gaussian state: params, grads, Adam moments, strategy state"),
@@ -140,6 +151,7 @@ MILESTONE_FIELDS: tuple[Field, ...] = (
 MILESTONE_COLUMNS: list[str] = [f.name for f in MILESTONE_FIELDS]
 MEMORY_PART_COLUMNS: tuple[str, ...] = ("mem_state_mib", "mem_keyframes_mib", "mem_other_mib", "mem_work_mib")
 PRUNE_COUNT_COLUMNS: tuple[str, ...] = ("n_redundant", "n_pruned_redundant", "n_hole_px", "n_reseeded_holes")
+DENSIFY_COUNT_COLUMNS: tuple[str, ...] = ("n_densify_dropped", "n_cap_removed")  # per keyframe, from diag
 SCORE_VIEW_COLUMNS: tuple[str, ...] = ("n_score_views", "score_views")
 PRUNE_QUARTILE_COLUMNS: tuple[str, ...] = (
     "cand_cov_q1", "cand_cov_q2", "cand_cov_q3", "cand_w_q1", "cand_w_q2", "cand_w_q3",

@@ -26,3 +26,7 @@ class AreaPruning(Strategy):
     def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
         score = area_score(ctx.raster, ctx.gaussians.opacities, self.area)  # [N]
         return top_k_keep(score, ctx.candidates, ctx.n_target)
+
+    def cap_score(self, ctx: PruneContext) -> torch.Tensor:
+        """S_i at the context's view, as pocket's (slam.densify.cap)."""
+        return area_score(ctx.raster, ctx.gaussians.opacities, self.area)

@@ -37,5 +37,9 @@ class GradientPruning(Strategy):
         """[N] mean g_i over the frames that rendered the Gaussian (0 if none did)."""
         return state[STATE_GRAD_SUM] / state[STATE_FRAMES].clamp_min(1)
 
+    def cap_score(self, ctx: PruneContext) -> torch.Tensor:
+        """The same mean g_i ranks the map at slam.densify.cap."""
+        return self.score(ctx.state)
+
     def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
         return top_k_keep(self.score(ctx.state), ctx.candidates, ctx.n_target)

@@ -72,6 +72,10 @@ class LightGaussianPruning(RenderCriterion):
     def score(self, ctx: PruneContext) -> torch.Tensor:
         return self.importance(ctx) * volume_factor(ctx.gaussians.log_scales, self.lg_v_pow, self.lg_volume_clip)
 
+    def cap_score(self, ctx: PruneContext) -> torch.Tensor:
+        """The criterion's score over its scoring views ranks the map at slam.densify.cap."""
+        return self.score(ctx)
+
     def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
         v = self.score(ctx)
         if self.rule == "equal_removal":

@@ -62,3 +62,7 @@ class OpacityPruning(Strategy):
         ctx.state[STATE_SIGNIFICANCE] += ctx.gaussians.opacities.detach() * hits
         ctx.state[STATE_VIEWS] += (hits > 0).to(torch.float32)
         return top_k_keep(self.significance(ctx), ctx.candidates, ctx.n_target)
+
+    def cap_score(self, ctx: PruneContext) -> torch.Tensor:
+        """The significance accumulated over the prunes so far, this view's hits not added (slam.densify.cap)."""
+        return self.significance(ctx)

@@ -137,6 +137,11 @@ class PocketPruning(Strategy):
         budget, _ = self.budgets(ctx)
         return keep_top_per_tile(score, self._tiles(ctx), self._candidates(ctx), budget)
 
+    def cap_score(self, ctx: PruneContext) -> torch.Tensor:
+        """S_i at the context's view: at the cap (slam.densify.cap) the Gaussians that paint the least of the
+        new keyframe's image make room, those out of its view (S_i = 0) first; the tile budgets play no part."""
+        return area_score(ctx.raster, ctx.gaussians.opacities, self.area)
+
     def _tiles(self, ctx: PruneContext) -> torch.Tensor:
         """[N] tile index per Gaussian (see ``tile_source``)."""
         if self.tile_source == "zero":

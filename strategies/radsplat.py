@@ -41,6 +41,10 @@ class RadSplatPruning(RenderCriterion):
             h = torch.maximum(h, out.max_weight.detach().float())
         return h
 
+    def cap_score(self, ctx: PruneContext) -> torch.Tensor:
+        """The criterion's score over its scoring views ranks the map at slam.densify.cap."""
+        return self.score(ctx)
+
     def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
         h = self.score(ctx)
         if self.rule == "equal_removal":

@@ -41,6 +41,10 @@ class SpeedySplatPruning(RenderCriterion):
             s += out.alpha_grad_sq.float()
         return s
 
+    def cap_score(self, ctx: PruneContext) -> torch.Tensor:
+        """The criterion's score over its scoring views ranks the map at slam.densify.cap."""
+        return self.score(ctx)
+
     def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
         s = self.score(ctx)
         if self.rule == "equal_removal":

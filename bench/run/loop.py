@@ -278,6 +278,7 @@ def keyframe_row(parts: RunSetup, res: FrameResult, frame_index: int, between: d
         "n_gaussians": len(system.map),
         "n_masked": parts.strategy.masked_count(system.map, system.map.state),
         "n_added": res.n_added,
+        **{k: res.diag.get(k, 0) for k in schema.DENSIFY_COUNT_COLUMNS},
         "n_pruned": res.n_pruned + between["n_pruned"],
         "n_candidates": res.n_candidates + between["n_candidates"],
         "state_bytes": state_bytes,

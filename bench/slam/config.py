@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from bench.config.settings import as_config, check_rules, setting
+from bench.errors import ConfigError
 from bench.slam.frontend import FlowPnpConfig
 from bench.slam.gaussians import LearningRates
 from bench.slam.raster import BACKENDS
@@ -14,6 +15,47 @@ TRACKING_MASKS = ("current", "init")
 TRACKING_INITS = ("velocity", "flow_pnp")
 DENSIFY_ERR_MEDIANS = ("confident", "image")
 LOST_CHECKS = ("both", "depth", "color", "off")  # slam.lost_check
+DENSIFY_BUDGETS = ("constant", "taming")  # slam.densify.budget
+SEED_ORDERS = ("random", "need")  # slam.densify.seed_order
+CAP_UNSCORED = ("drop", "opacity")  # slam.densify.unscored
+
+
+@dataclass
+class DensifyConfig:
+    """A bound on what densification may add (``slam.densify.*``); null everywhere is today's unbounded rule.
+
+    Why: pruning alone does not bound the map over a drive, since densification re-seeds what a prune
+    opens. ``cap`` holds the map's size, in the spirit of gsplat MCMC's ``cap_max``, and is where
+    strategies can be compared at equal memory; ``budget`` limits each keyframe's additions, in the
+    spirit of Taming 3DGS's budget curve. How both decide what is kept: bench/slam/densify.py and
+    docs/architecture.md, "Densification budget".
+    """
+
+    # the map holds at most this many Gaussians once a keyframe's seeds are in; at the cap, the strategy's
+    # score ranks what is kept (Strategy.cap_score) and the lowest-scored make room for the seeds; null = no cap
+    cap: int | None = setting(None, "int", lo=1, nullable=True)
+    # at the cap, a strategy without a score (none, and every strategy whose score hook returns None):
+    # "drop" = no Gaussian is removed, the seeds beyond the cap are not added; "opacity" = rank by opacity
+    unscored: str = setting("drop", "str", choices=CAP_UNSCORED)
+    # the seeds each keyframe may add: "constant" = per_keyframe each; "taming" = up to Taming 3DGS's curve of
+    # the map's size (get_count_array), from the size after keyframe 0 to final_count at final_keyframe; null = all
+    budget: str | None = setting(None, "str", choices=DENSIFY_BUDGETS, nullable=True)
+    per_keyframe: int | None = setting(None, "int", lo=0, nullable=True)  # budget=constant: seeds per keyframe
+    final_count: int | None = setting(None, "int", lo=1, nullable=True)  # budget=taming: the curve's end size
+    final_keyframe: int | None = setting(None, "int", lo=1, nullable=True)  # budget=taming: ... reached here
+    # which candidate pixels become seeds when fewer fit (budget or cap): "random" = a uniform sample drawn
+    # from the run's seed (the densification generator); "need" = the largest silhouette deficit 1 - alpha
+    # first, then the largest depth error, then the lower pixel index (row-major)
+    seed_order: str = setting("random", "str", choices=SEED_ORDERS)
+
+    def __post_init__(self) -> None:
+        check_rules(self, "slam.densify.")
+        needs = {"constant": ("per_keyframe",), "taming": ("final_count", "final_keyframe")}
+        for key in needs.get(self.budget or "", ()):
+            if getattr(self, key) is None:
+                raise ConfigError(
+                    f"slam.densify.{key}: expected an integer with slam.densify.budget={self.budget}, found null"
+                )
 
 
 @dataclass
@@ -91,6 +133,7 @@ class SlamConfig:
     densify_sigma_px: float | None = setting(None, "float", lo=0.0, lo_open=True, nullable=True)
     # opaque seeds: tracking needs a confident silhouette early (SplaTAM: 0.5)
     init_opacity: float = setting(0.95, "float", lo=0.0, hi=1.0, lo_open=True, hi_open=True)
+    densify: DensifyConfig = field(default_factory=DensifyConfig)  # slam.densify.NAME=VALUE: cap and budget
     name: str = "default"  # the preset's name (conf/slam/NAME.yaml), recorded as slam_preset in metrics.json
     max_depth_m: float = 150.0  # observed depth beyond this is ignored
     lrs: LearningRates = field(default_factory=LearningRates)  # slam.lrs.NAME=VALUE
@@ -119,3 +162,4 @@ class SlamConfig:
         # a mapping of overrides (SlamConfig(lrs={"colors": 0.5}) from Python) becomes the typed group
         self.lrs = as_config(LearningRates, self.lrs, "slam.lrs")
         self.flow_pnp = as_config(FlowPnpConfig, self.flow_pnp, "slam.flow_pnp")
+        self.densify = as_config(DensifyConfig, self.densify, "slam.densify")

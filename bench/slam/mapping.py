@@ -7,6 +7,7 @@ from collections.abc import Callable
 
 import torch
 
+from bench.slam.densify import cap_keep, pick_seeds, seed_budget
 from bench.slam.keyframes import Keyframe
 from bench.slam.losses import dssim
 from bench.slam.se3 import inverse
@@ -21,9 +22,11 @@ class Mapping(SystemState):
     def _densify(self, rgb: torch.Tensor, depth: torch.Tensor, w2c: torch.Tensor, kf_idx: int) -> int:
         cfg = self.cfg
         valid = depth > 0
+        deficit = err = None  # [H, W] each: what slam.densify.seed_order=need ranks by
         if len(self.map):
             out = self.render(w2c)
             err = (out.depth - depth).abs()
+            deficit = 1 - out.alpha
             if cfg.densify_err_median == "image":  # SplaTAM: over every pixel, those without depth at 0
                 med = (err * valid).median()
             else:
@@ -41,6 +44,12 @@ class Mapping(SystemState):
         grid = torch.zeros_like(valid)
         grid[oy::s, ox::s] = True
         sel = need & valid & grid
+        self._densify_dropped = self._cap_removed = 0
+        if cfg.densify.cap is not None or cfg.densify.budget is not None:
+            ones = torch.ones_like(depth)  # no map yet: every pixel's deficit is whole, its error even
+            sel = self._bound_seeds(
+                sel, kf_idx, w2c, ones if deficit is None else deficit, err if err is not None else ones
+            )
         self._reseeded = self._count_in_holes(sel, depth, w2c)
         if not sel.any():
             return 0
@@ -64,6 +73,44 @@ class Mapping(SystemState):
             keyframe=kf_idx,
         )
         return n
+
+    def _bound_seeds(
+        self, sel: torch.Tensor, kf_idx: int, w2c: torch.Tensor, deficit: torch.Tensor, err: torch.Tensor
+    ) -> torch.Tensor:
+        """The candidate pixels ``sel`` [H, W] cut to the keyframe's budget and to the cap (``slam.densify``).
+
+        At the cap the strategy's score ranks the map, and the lowest-scored Gaussians leave through
+        ``GaussianMap.remove`` (the one removal path: Adam moments and state follow) to make room for the
+        budgeted seeds; a strategy without a score removes nothing under ``unscored=drop`` and the seeds
+        beyond the cap are dropped. Sets ``_densify_dropped`` and ``_cap_removed`` (keyframes.csv).
+        """
+        dcfg = self.cfg.densify
+        n_cand = int(sel.sum())
+        k = n_cand
+        budget = seed_budget(dcfg, kf_idx, len(self.map), self._densify_start)
+        if budget is not None:
+            k = min(k, budget)
+        if dcfg.cap is not None and len(self.map) + k > dcfg.cap:
+            score = self._cap_score(kf_idx, w2c) if len(self.map) else None
+            if score is not None:
+                self._cap_removed = self.map.remove(cap_keep(score, max(dcfg.cap - k, 0)))
+            k = min(k, dcfg.cap - len(self.map))
+        if self._densify_start is None:  # the taming curve starts from the map as keyframe 0 leaves it
+            self._densify_start = len(self.map) + k
+        self._densify_dropped = n_cand - k
+        return pick_seeds(sel, k, dcfg.seed_order, deficit, err, self._densify_rng)
+
+    def _cap_score(self, kf_idx: int, w2c: torch.Tensor) -> torch.Tensor | None:
+        """[N] the strategy's score of the map at the new keyframe's pose (every Gaussian a candidate, none
+        new), or opacity under ``unscored=opacity``; None when neither ranks."""
+        out = self.render(w2c, stats=True)
+        st = self.map.state
+        none = torch.zeros(len(self.map), dtype=torch.bool, device=self.device)
+        grad_mean = st["_track_grad_sum"] / st["_track_grad_n"].clamp_min(1)
+        score = self.strategy.cap_score(self._prune_context(kf_idx, out, none, ~none, grad_mean))
+        if score is None and self.cfg.densify.unscored == "opacity":
+            score = self.map.opacities.detach()
+        return score
 
     def _map(self, kf_idx: int) -> int:
         """Optimise the map over the keyframe window; the iterations run (none after the first

@@ -179,6 +179,13 @@ class Strategy:
         """[N] bool keep mask; None keeps everything."""
         return None
 
+    def cap_score(self, ctx: PruneContext) -> torch.Tensor | None:
+        """[N] float, higher = more worth keeping, read by the core where it must remove Gaussians itself: at
+        ``slam.densify.cap`` the lowest-scored make room for a keyframe's seeds. ``ctx`` is rendered at the
+        new keyframe's pose before its seeds are added, every Gaussian a candidate. It must not change
+        ``ctx.state``. None: no ranking (``slam.densify.unscored`` says what the cap does then)."""
+        return None
+
 
 def top_k_keep(score: torch.Tensor, candidates: torch.Tensor, k: int) -> torch.Tensor:
     """Keep all non-candidates plus the ``k`` best-scoring candidates (the shared global rule)."""
@@ -292,6 +299,7 @@ _RESULT_CHECKS: dict[str, Callable[..., Any]] = {
     "masked_count": _masked_count,
     "mapping_loss": _mapping_loss,
     "after_mapping": _after_mapping,
+    "cap_score": lambda s, out, ctx: s._tensor("cap_score", out, len(ctx.gaussians), "floating"),
 }
 HOOKS: tuple[str, ...] = tuple(n for n, v in vars(Strategy).items() if callable(v) and not n.startswith("_"))
 if set(HOOKS) != set(_RESULT_CHECKS):  # a hook without a check would reach the core unchecked, or not at all

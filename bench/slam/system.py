@@ -125,6 +125,10 @@ class System(Tracking, Mapping, PruneDiagnostics):
         # prunes since the last densification opened: the next densification counts seeds landing there
         self._holes: list[np.ndarray] = []
         self._reseeded = 0  # seeds of the last densification that landed in those pixels
+        # slam.densify: what the last densification's budget and cap left out and removed (keyframes.csv), and
+        # the map's size after keyframe 0, where budget=taming's curve starts (checkpointed)
+        self._densify_dropped = self._cap_removed = 0
+        self._densify_start: int | None = None
         # per tracked frame, what the loss detector reads: (frame, colour L1 on confident pixels,
         # fraction of confident pixels, depth L1 in m on confident pixels with depth); a few floats per frame
         self.track_log: list[tuple[int, float, float, float]] = []
@@ -196,6 +200,8 @@ class System(Tracking, Mapping, PruneDiagnostics):
             with self._phase("mapping"):
                 result.n_added = self._densify(rgb, depth, w2c, kf_idx)
                 result.diag["n_reseeded_holes"] = self._reseeded
+                result.diag["n_densify_dropped"] = self._densify_dropped
+                result.diag["n_cap_removed"] = self._cap_removed
                 mapped = self._map(kf_idx)
             t_fit = time.perf_counter()
             self._fit_diagnostics(result.diag, rgb, depth, w2c)
@@ -249,6 +255,7 @@ class System(Tracking, Mapping, PruneDiagnostics):
             "prev_obs": prev,
             "rng": _py_rng_state(self._rng),
             "densify_rng": _np_gen_state(self._densify_rng),
+            "densify_start": self._densify_start,
             "ransac_rng": _np_gen_state(self._ransac_rng),
             # prune diagnostics: the opened pixels' world points awaiting the next densification [M, 3]
             "holes": torch.from_numpy(np.concatenate(self._holes) if self._holes else np.zeros((0, 3))),
@@ -286,6 +293,7 @@ class System(Tracking, Mapping, PruneDiagnostics):
         self._prev_obs = None if prev is None else (prev[0].numpy(), prev[1].numpy())
         self._rng.setstate(_py_rng_from(sd["rng"]))
         self._densify_rng.bit_generator.state = sd["densify_rng"]
+        self._densify_start = sd.get("densify_start")  # absent from checkpoints before slam.densify
         self._ransac_rng.bit_generator.state = sd["ransac_rng"]
         holes = sd["holes"].numpy()
         self._holes = [holes] if len(holes) else []
@@ -312,22 +320,7 @@ class System(Tracking, Mapping, PruneDiagnostics):
         grad_mean = st["_track_grad_sum"] / st["_track_grad_n"].clamp_min(1)
         is_new = self.map.birth_kf == kf_idx
         candidates = (out.tile_id >= 0) & ~is_new
-        grad2d = (st["_map_grad2d_sum"], st["_map_grad2d_n"]) if self._map_grad2d else None
-        ctx = PruneContext(
-            kf_idx,
-            self.map,
-            st,
-            out,
-            grad_mean,
-            is_new,
-            candidates,
-            self.keep_ratio,
-            (self.H, self.W),
-            self.prune.target_count,
-            renderer=self._score_views,
-            mapping_grad2d=grad2d,
-            seed=self.cfg.seed,
-        )
+        ctx = self._prune_context(kf_idx, out, is_new, candidates, grad_mean)
         keep = self.strategy.after_mapping(ctx)
         if result is not None and ctx.views_used:
             result.diag["n_score_views"] = len(ctx.views_used)
@@ -345,6 +338,33 @@ class System(Tracking, Mapping, PruneDiagnostics):
             self._prune_diagnostics(result.diag, out, candidates, keep, n_removed, w2c, depth)
             result.diag_s += time.perf_counter() - t0
         return n_removed, n_candidates
+
+    def _prune_context(
+        self,
+        kf_idx: int,
+        out: RasterOutput,
+        is_new: torch.Tensor,
+        candidates: torch.Tensor,
+        grad_mean: torch.Tensor,
+    ) -> PruneContext:
+        """What a strategy's prune (``after_mapping``) and its score (``score``, at the cap) read: ``out`` the
+        stats=True render of the map, ``is_new``, ``candidates`` and ``grad_mean`` [N] each."""
+        st = self.map.state
+        return PruneContext(
+            kf_idx,
+            self.map,
+            st,
+            out,
+            grad_mean,
+            is_new,
+            candidates,
+            self.keep_ratio,
+            (self.H, self.W),
+            self.prune.target_count,
+            renderer=self._score_views,
+            mapping_grad2d=(st["_map_grad2d_sum"], st["_map_grad2d_n"]) if self._map_grad2d else None,
+            seed=self.cfg.seed,
+        )
 
     def _score_views(self, which: str, extra: frozenset[str]):
         """PruneContext.render_views: (keyframe index, render) of each view ``which`` selects."""

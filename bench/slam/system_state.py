@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from bench.slam.keyframes import Keyframe
     from bench.slam.lost import LostDetector
     from bench.slam.raster import RasterOutput
-    from bench.slam.strategy import PruneConfig, Strategy
+    from bench.slam.strategy import PruneConfig, PruneContext, Strategy
 
 
 class SystemState:
@@ -54,11 +54,14 @@ class SystemState:
     on_prune: Callable[[int, torch.Tensor, RasterOutput, torch.Tensor | None], None] | None
     _holes: list[np.ndarray]
     _reseeded: int
+    _densify_dropped: int  # candidate pixels the last densification's budget and cap left out
+    _cap_removed: int  # Gaussians the last densification removed to make room at the cap
+    _densify_start: int | None  # the map's size after keyframe 0 (slam.densify.budget=taming's start)
     track_log: list[tuple[int, float, float, float]]
 
     if TYPE_CHECKING:
         # defined by System (render) and by the other halves (_depth_l1 in Tracking, _count_in_holes in
-        # PruneDiagnostics)
+        # PruneDiagnostics, _prune_context in System)
         def render(
             self,
             w2c: torch.Tensor,
@@ -73,3 +76,12 @@ class SystemState:
         ) -> torch.Tensor: ...
 
         def _count_in_holes(self, sel: torch.Tensor, depth: torch.Tensor, w2c: torch.Tensor) -> int: ...
+
+        def _prune_context(
+            self,
+            kf_idx: int,
+            out: RasterOutput,
+            is_new: torch.Tensor,
+            candidates: torch.Tensor,
+            grad_mean: torch.Tensor,
+        ) -> PruneContext: ...

@@ -41,6 +41,9 @@ class Returns(Strategy):
     def mapping_loss(self, ctx):
         return self.out
 
+    def cap_score(self, ctx):
+        return self.out
+
 
 @pytest.mark.parametrize(
     ("out", "found"),
@@ -63,6 +66,13 @@ def test_a_well_formed_output_passes_unchanged():
     keep = torch.tensor([True, False, True, True, False])
     assert CheckedStrategy(Returns(keep), "mine").after_mapping(_prune_ctx(g)) is keep
     assert CheckedStrategy(Returns(None), "mine").after_mapping(_prune_ctx(g)) is None
+
+
+def test_a_cap_score_must_be_floating_per_gaussian():
+    g = _map(3)
+    with pytest.raises(StrategyError, match=r"strategy 'mine' cap_score: expected a floating tensor \[3\]"):
+        CheckedStrategy(Returns(torch.ones(3, dtype=torch.bool)), "mine").cap_score(_prune_ctx(g))
+    assert CheckedStrategy(Returns(None), "mine").cap_score(_prune_ctx(g)) is None
 
 
 def test_render_mask_and_loss_shapes_are_checked():
@@ -111,4 +121,5 @@ def test_every_hook_of_the_contract_is_forwarded_and_checked():
     wrapped.masked_count(g, g.state)
     wrapped.mapping_loss(mctx)
     wrapped.after_mapping(_prune_ctx(g))
+    wrapped.cap_score(_prune_ctx(g))
     assert sorted(called) == sorted(public)
