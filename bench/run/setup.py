@@ -65,7 +65,9 @@ def build(
     timer = PhaseTimer(device)
     probe = MemoryProbe(device, torch_live=cfg.memory.torch_live)  # before the SLAM state is allocated
     store = out / STORE_DIR if out is not None else None
-    system = System(cfg.slam, seq.K, seq.height, seq.width, strategy, cfg.prune, device, timer=timer, keyframe_dir=store)
+    system = System(
+        cfg.slam, seq.K, seq.height, seq.width, strategy, cfg.prune, device, timer=timer, keyframe_dir=store
+    )
     return RunSetup(seq, n_frames, strategy, system, timer, probe, lpips=built.lpips)
 
 

@@ -111,7 +111,7 @@ def torch_owned(rgb: torch.Tensor) -> torch.Tensor:
 
 
 class KeyframeStore(Sequence[Keyframe]):
-    """The keyframes held, oldest first, under ``KeyframeStoreConfig``; ``count`` is every keyframe made.
+    """The keyframes held, oldest first, under ``KeyframeStoreConfig``; ``n_made`` counts every keyframe made.
 
     Indexing and ``len`` are over the keyframes held (all of them without a window)."""
 
@@ -121,16 +121,18 @@ class KeyframeStore(Sequence[Keyframe]):
                 "slam.keyframes.residency=disk: expected a folder for the keyframe store (a run dir), found none"
             )
         self.cfg, self.folder = cfg, folder if cfg.residency == "disk" else None
-        self.count = 0
+        self.n_made = 0
         self._held: list[Keyframe] = []
         self._file_bytes: dict[int, int] = {}  # kf -> bytes of its file (residency=disk)
         self._clear_folder()
 
-    def add(self, index: int, rgb: torch.Tensor, depth: torch.Tensor, w2c: torch.Tensor, kf: int | None = None) -> Keyframe:
+    def add(
+        self, index: int, rgb: torch.Tensor, depth: torch.Tensor, w2c: torch.Tensor, kf: int | None = None
+    ) -> Keyframe:
         """Store a keyframe (``rgb`` [H, W, 3], ``depth`` [H, W] float32 as observed); the oldest goes when
         the window is full. ``kf``: its number (a resume's), else the next."""
-        kf = self.count if kf is None else kf
-        self.count = max(self.count, kf + 1)
+        number = self.n_made if kf is None else kf
+        self.n_made = max(self.n_made, number + 1)
         if self.cfg.precision == "compact":
             rgb, depth = compact(rgb, depth)
         else:
@@ -138,11 +140,11 @@ class KeyframeStore(Sequence[Keyframe]):
         path = None
         stored: tuple[torch.Tensor | None, torch.Tensor | None] = (rgb, depth)
         if self.folder is not None:
-            path = self.folder / f"kf_{kf:05d}.pt"
+            path = self.folder / f"kf_{number:05d}.pt"
             torch.save({"rgb": rgb.cpu(), "depth": depth.cpu()}, path)
-            self._file_bytes[kf] = path.stat().st_size
+            self._file_bytes[number] = path.stat().st_size
             stored = (None, None)
-        keyframe = Keyframe(index, stored[0], stored[1], w2c, kf, path)
+        keyframe = Keyframe(index, stored[0], stored[1], w2c, number, path)
         self._held.append(keyframe)
         if self.cfg.window is not None and len(self._held) > self.cfg.window:
             self._drop(self._held.pop(0))
@@ -160,7 +162,10 @@ class KeyframeStore(Sequence[Keyframe]):
             self.folder.mkdir(parents=True)
 
     def restore(
-        self, count: int, held: list[tuple[int, int, torch.Tensor]], images: Callable[[int], tuple[torch.Tensor, torch.Tensor]]
+        self,
+        count: int,
+        held: list[tuple[int, int, torch.Tensor]],
+        images: Callable[[int], tuple[torch.Tensor, torch.Tensor]],
     ) -> None:
         """A checkpoint's store: ``held`` as (kf, frame index, w2c), images re-read by ``images(frame index)``
         and stored again (for residency=disk, files written again), so it matches the store the
@@ -170,7 +175,7 @@ class KeyframeStore(Sequence[Keyframe]):
         for kf, index, w2c in held:
             rgb, depth = images(index)
             self.add(index, rgb, depth, w2c, kf)
-        self.count = count
+        self.n_made = count
 
     def close(self) -> None:
         """Remove the on-disk store (the run is over; a resume writes it again from the sequence)."""

@@ -97,7 +97,7 @@ class Mapping(SystemState):
                 on_step()  # iteration it-1 is done
             return self._rng.choice(self.keyframes)  # those held (slam.keyframes.window)
 
-        self._optimize(self.keyframes.count - 1, iters, pick)
+        self._optimize(self.keyframes.n_made - 1, iters, pick)
         if on_step is not None:
             on_step()
 

@@ -142,7 +142,7 @@ class System(Tracking, Mapping, PruneDiagnostics):
     ) -> RasterOutput:
         g = self.map
         op = g.opacities
-        mask = self.strategy.render_mask(MappingContext(self.keyframes.count, iteration, g, g.state, training))
+        mask = self.strategy.render_mask(MappingContext(self.keyframes.n_made, iteration, g, g.state, training))
         if mask is not None:
             op = op * mask
         return rasterize(
@@ -191,7 +191,7 @@ class System(Tracking, Mapping, PruneDiagnostics):
             if self.prune.every == "frame" and self.keyframes:
                 # the next keyframe's index: nothing is new on a frame that added no Gaussian
                 with self._phase("pruning"):
-                    result.n_pruned, result.n_candidates = self._prune(self.keyframes.count, w2c, depth, result)
+                    result.n_pruned, result.n_candidates = self._prune(self.keyframes.n_made, w2c, depth, result)
                 result.prune_s = time.perf_counter() - t1
         else:
             kf_idx = self.keyframes.add(frame.index, rgb, depth, w2c).kf
@@ -245,7 +245,7 @@ class System(Tracking, Mapping, PruneDiagnostics):
                 "index": torch.tensor([kf.index for kf in self.keyframes], dtype=torch.long),
                 "w2c": _stack([kf.w2c for kf in self.keyframes]),
                 "kf": torch.tensor([kf.kf for kf in self.keyframes], dtype=torch.long),
-                "count": self.keyframes.count,
+                "count": self.keyframes.n_made,
             },  # [K], [K, 4, 4], [K]
             "poses": _stack(self.poses),  # [F, 4, 4]
             "frames_since_kf": self.frames_since_kf,
@@ -375,7 +375,8 @@ class System(Tracking, Mapping, PruneDiagnostics):
     def disk_bytes(self) -> dict[str, int]:
         """Exact bytes of the files the run holds on disk now, by part: the Gaussian state (map residency,
         when a residency policy is attached as ``_residency``) and the keyframe store."""
-        state = self._residency.disk_bytes() if getattr(self, "_residency", None) is not None else 0
+        residency = getattr(self, "_residency", None)  # map residency, where a policy attached one
+        state = residency.disk_bytes() if residency is not None else 0
         return {"state": int(state), "keyframes": self.keyframes.disk_bytes()}
 
 

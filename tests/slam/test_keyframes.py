@@ -47,7 +47,7 @@ def test_a_window_keeps_exactly_the_k_newest(tmp_path: Path) -> None:
     for i in range(7):
         store.add(10 * i, *images(i), torch.eye(4))
     assert [kf.kf for kf in store] == [4, 5, 6] and [kf.index for kf in store] == [40, 50, 60]
-    assert len(store) == 3 and store.count == 7
+    assert len(store) == 3 and store.n_made == 7
     assert sorted(p.name for p in (tmp_path / "store").iterdir()) == ["kf_00004.pt", "kf_00005.pt", "kf_00006.pt"]
 
 
@@ -108,7 +108,7 @@ def test_a_system_with_a_window_maps_refines_and_scores_over_the_keyframes_it_ho
     s = System(cfg, seq.K, seq.height, seq.width, Strategy(), 0.4, torch.device("cpu"), keyframe_dir=tmp_path / "kfs")
     results = [s.step(seq[i]) for i in range(4)]
     assert [r.keyframe_index for r in results] == [0, 1, 2, 3]  # numbered over the drive, not by what is held
-    assert [kf.kf for kf in s.keyframes] == [2, 3] and s.keyframes.count == 4
+    assert [kf.kf for kf in s.keyframes] == [2, 3] and s.keyframes.n_made == 4
     assert [i for i, _ in s._score_views("held_keyframes", frozenset())] == [2, 3]
     s.refine(2)
     assert s.disk_bytes() == {"state": 0, "keyframes": s.keyframes.disk_bytes()}

@@ -47,7 +47,7 @@ class PruneViz:
     def __call__(self, kf_idx: int, w2c: torch.Tensor, before: RasterOutput, keep: torch.Tensor | None) -> None:
         system = self.system
         # keyframe prunes only (prune.every=frame also prunes between keyframes, with the next index)
-        if kf_idx == 0 or kf_idx % self.every or kf_idx != system.keyframes.count - 1:
+        if kf_idx == 0 or kf_idx % self.every or kf_idx != system.keyframes.n_made - 1:
             return
         kf = system.keyframes[-1]  # the newest: keyframe kf_idx
         after = system.render(w2c).color  # [H, W, 3], the map is pruned by now
