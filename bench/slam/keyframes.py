@@ -13,6 +13,11 @@ large 3DGS-SLAM systems bound it in three ways, each an option here that changes
   a prune's score views (``PruneContext.render_views``) render them. Keyframe numbers (``kf``) keep counting
   over the drive, so the keyframes.csv ``kf`` column and a Gaussian's birth keyframe mean the same as without
   a window; ``score_views`` names the views actually used.
+- ``submap_reset_m`` / ``submap_reset_deg``: a new submap once a keyframe is farther than this from the
+  submap's first keyframe (camera centres), or turned more than this from it, as Gaussian-SLAM and LoopSplat
+  start one after 0.5 m or 50 degrees: the store then drops every keyframe it holds and starts over
+  with the new one. Only the keyframes go; the Gaussians stay one map (moving them out is map
+  residency's part). What reads keyframes reads the current submap's, as with a window.
 - ``residency``: ``memory``, or ``disk``: each keyframe's (stored-precision) images go to one file in the
   run's ``keyframe_store/`` when the keyframe is made, and are read back each time something draws it (a
   mapping or refinement iteration, a score view); in memory stay its pose, frame and keyframe number,
@@ -26,6 +31,7 @@ without the policy.
 
 from __future__ import annotations
 
+import math
 import shutil
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -36,6 +42,7 @@ import torch
 
 from bench.config.settings import check_rules, setting
 from bench.errors import ConfigError
+from bench.slam.se3 import inverse, so3_log
 
 PRECISIONS = ("float32", "compact")  # slam.keyframes.precision
 RESIDENCIES = ("memory", "disk")  # slam.keyframes.residency
@@ -49,6 +56,9 @@ class KeyframeStoreConfig:
     precision: str = setting("float32", "str", choices=PRECISIONS)
     window: int | None = setting(None, "int", lo=1, nullable=True)  # the K newest keyframes held; None = all
     residency: str = setting("memory", "str", choices=RESIDENCIES)
+    # a new submap (the store cleared) past this distance or turn from the submap's first keyframe; None = never
+    submap_reset_m: float | None = setting(None, "float", lo=0.0, lo_open=True, nullable=True)
+    submap_reset_deg: float | None = setting(None, "float", lo=0.0, lo_open=True, nullable=True)
 
     def __post_init__(self) -> None:
         check_rules(self, "slam.keyframes.")
@@ -124,6 +134,7 @@ class KeyframeStore(Sequence[Keyframe]):
         self.n_made = 0
         self._held: list[Keyframe] = []
         self._file_bytes: dict[int, int] = {}  # kf -> bytes of its file (residency=disk)
+        self.submap_anchor: torch.Tensor | None = None  # [4, 4] w2c of the current submap's first keyframe
         self._clear_folder()
 
     def add(
@@ -133,6 +144,10 @@ class KeyframeStore(Sequence[Keyframe]):
         the window is full. ``kf``: its number (a resume's), else the next."""
         number = self.n_made if kf is None else kf
         self.n_made = max(self.n_made, number + 1)
+        if kf is None and self._new_submap(w2c):
+            for old in self._held:
+                self._drop(old)
+            self._held = []
         if self.cfg.precision == "compact":
             rgb, depth = compact(rgb, depth)
         else:
@@ -149,6 +164,19 @@ class KeyframeStore(Sequence[Keyframe]):
         if self.cfg.window is not None and len(self._held) > self.cfg.window:
             self._drop(self._held.pop(0))
         return keyframe
+
+    def _new_submap(self, w2c: torch.Tensor) -> bool:
+        """Whether ``w2c`` starts a new submap (the first keyframe starts one); it becomes the anchor if so."""
+        m, deg = self.cfg.submap_reset_m, self.cfg.submap_reset_deg
+        if m is None and deg is None:
+            return False
+        if self.submap_anchor is not None:
+            rel = w2c @ inverse(self.submap_anchor)  # the anchor camera in the new one's frame
+            far = m is not None and float(rel[:3, 3].norm()) > m
+            if not far and not (deg is not None and math.degrees(float(so3_log(rel[:3, :3]).norm())) > deg):
+                return False
+        self.submap_anchor = w2c.detach().clone()
+        return True
 
     def _drop(self, keyframe: Keyframe) -> None:
         if keyframe.path is not None:
@@ -169,7 +197,7 @@ class KeyframeStore(Sequence[Keyframe]):
     ) -> None:
         """A checkpoint's store: ``held`` as (kf, frame index, w2c), images re-read by ``images(frame index)``
         and stored again (for residency=disk, files written again), so it matches the store the
-        checkpoint was taken from byte for byte."""
+        checkpoint was taken from byte for byte. The submap anchor is the checkpoint's to set (``submap_anchor``)."""
         self._held, self._file_bytes = [], {}
         self._clear_folder()
         for kf, index, w2c in held:

@@ -246,6 +246,7 @@ class System(Tracking, Mapping, PruneDiagnostics):
                 "w2c": _stack([kf.w2c for kf in self.keyframes]),
                 "kf": torch.tensor([kf.kf for kf in self.keyframes], dtype=torch.long),
                 "count": self.keyframes.n_made,
+                "submap_anchor": self.keyframes.submap_anchor,  # [4, 4] or None (slam.keyframes.submap_reset_*)
             },  # [K], [K, 4, 4], [K]
             "poses": _stack(self.poses),  # [F, 4, 4]
             "frames_since_kf": self.frames_since_kf,
@@ -285,6 +286,8 @@ class System(Tracking, Mapping, PruneDiagnostics):
         numbers = kfs["kf"].tolist() if "kf" in kfs else list(range(len(indices)))
         held = [(kf, index, w2c.to(self.device)) for kf, index, w2c in zip(numbers, indices, kfs["w2c"], strict=True)]
         self.keyframes.restore(kfs.get("count", len(indices)), held, lambda i: self.observe(frame_at(i)))
+        anchor = kfs.get("submap_anchor")
+        self.keyframes.submap_anchor = None if anchor is None else anchor.to(self.device)
         self.poses = [p.to(self.device) for p in sd["poses"]]
         self.frames_since_kf, self.lost.bad_frames = sd["frames_since_kf"], sd["bad_frames"]
         self.lost.depth_recent = sd["depth_recent"].tolist()

@@ -113,3 +113,24 @@ def test_a_system_with_a_window_maps_refines_and_scores_over_the_keyframes_it_ho
     s.refine(2)
     assert s.disk_bytes() == {"state": 0, "keyframes": s.keyframes.disk_bytes()}
     assert s.keyframe_store_bytes() == 2 * POSE_BYTES
+
+
+def pose_at(x_m: float, yaw_deg: float = 0.0) -> torch.Tensor:
+    """w2c of a camera at (x_m, 0, 0) turned by ``yaw_deg`` about its y axis."""
+    a = torch.tensor(yaw_deg).deg2rad()
+    c2w = torch.eye(4)
+    c2w[0, 0], c2w[0, 2], c2w[2, 0], c2w[2, 2] = a.cos(), a.sin(), -a.sin(), a.cos()
+    c2w[0, 3] = x_m
+    return torch.linalg.inv(c2w)
+
+
+def test_a_new_submap_clears_the_store_past_its_distance_or_turn(tmp_path: Path) -> None:
+    cfg = KeyframeStoreConfig(submap_reset_m=1.0, submap_reset_deg=30.0, residency="disk")
+    store = KeyframeStore(cfg, tmp_path / "store")
+    held = []
+    for i, (x, yaw) in enumerate([(0, 0), (0.5, 0), (0.9, 20), (1.2, 0), (1.5, 0), (1.5, 40)]):
+        store.add(i, *images(i), pose_at(x, yaw))
+        held.append([kf.kf for kf in store])
+    # 1.2 m from the first is a new submap; 40 degrees from the submap's first (at 1.2 m) another
+    assert held == [[0], [0, 1], [0, 1, 2], [3], [3, 4], [5]]
+    assert len(list((tmp_path / "store").iterdir())) == 1 and store.n_made == 6
