@@ -212,8 +212,10 @@ class KeyframeStore(Sequence[Keyframe]):
         self._file_bytes = {}
 
     def memory_bytes(self) -> int:
-        """Exact bytes the store holds in memory: stored images (at their stored dtype) and poses."""
-        return int(sum(kf.memory_bytes() for kf in self._held))
+        """Exact bytes the store holds in memory: stored images (at their stored dtype) and poses (the
+        submap's first pose included)."""
+        anchor = 0 if self.submap_anchor is None else self.submap_anchor.numel() * self.submap_anchor.element_size()
+        return int(sum(kf.memory_bytes() for kf in self._held) + anchor)
 
     def disk_bytes(self) -> int:
         """Exact bytes of the store's files on disk (0 with residency=memory)."""
