@@ -84,7 +84,12 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
         "Gaussian state at its largest in the window (after densification, during "
         "mapping): params, a gradient per param, Adam moments, strategy state; exact bytes",
     ),
-    Field("mem_keyframes_mib", "MiB", "keyframe store: every keyframe's colour, depth and pose; exact bytes"),
+    Field(
+        "mem_keyframes_mib",
+        "MiB",
+        "keyframe store live in memory: each held keyframe's colour and depth at their stored dtype "
+        "(`slam.keyframes.precision`; none for a keyframe on disk) and its pose; exact bytes",
+    ),
     Field(
         "mem_other_mib",
         "MiB",
@@ -97,6 +102,18 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
         "transient work buffers at the peak (render outputs, rasterizer buffers, autograd "
         "saved tensors): the peak minus the three parts above",
     ),
+    # files the run holds on disk at the window's end (bench/run/loop.py:disk_parts); not in any peak above
+    Field(
+        "disk_state_mib",
+        "MiB",
+        "Gaussian state written to disk (map residency) at the window's end; exact bytes of its files",
+    ),
+    Field(
+        "disk_keyframes_mib",
+        "MiB",
+        "keyframe store on disk (`slam.keyframes.residency=disk`) at the window's end; exact bytes of its files",
+    ),
+    Field("disk_total_mib", "MiB", "`disk_state_mib` + `disk_keyframes_mib`"),
     # what pruning saw, removed, and what came back; counts over the window's prune calls, quartiles of the last
     Field("cand_cov_q1", "px", "candidates' coverage C_i at the pruning pose, first quartile"),
     Field("cand_cov_q2", "px", "... median"),
@@ -150,6 +167,8 @@ MILESTONE_FIELDS: tuple[Field, ...] = (
 )
 MILESTONE_COLUMNS: list[str] = [f.name for f in MILESTONE_FIELDS]
 MEMORY_PART_COLUMNS: tuple[str, ...] = ("mem_state_mib", "mem_keyframes_mib", "mem_other_mib", "mem_work_mib")
+DISK_PART_COLUMNS: tuple[str, ...] = ("disk_state_mib", "disk_keyframes_mib", "disk_total_mib")
+DISK_PEAK_FIELD = "disk_peak_mib"
 PRUNE_COUNT_COLUMNS: tuple[str, ...] = ("n_redundant", "n_pruned_redundant", "n_hole_px", "n_reseeded_holes")
 DENSIFY_COUNT_COLUMNS: tuple[str, ...] = ("n_densify_dropped", "n_cap_removed")  # per keyframe, from diag
 SCORE_VIEW_COLUMNS: tuple[str, ...] = ("n_score_views", "score_views")
@@ -243,9 +262,21 @@ METRIC_FIELDS: tuple[Field, ...] = (
     Field("torch_live_peak_mib", "MiB", "largest window value of the column of that name"),
     Field("cuda_alloc_peak_mib", "MiB", "largest window value of the column of that name"),
     Field("cuda_reserved_peak_mib", "MiB", "largest window value of the column of that name"),
-    Field(PEAK_FIELD, "MiB", "the headline peak: the column named by `peak_mem_source`"),
+    Field(
+        PEAK_FIELD,
+        "MiB",
+        "the headline peak: the column named by `peak_mem_source`. It counts what is live in memory: the CUDA "
+        "allocator on the device on CUDA, torch's live tensors on CPU (the process RSS only where neither is "
+        "measured). Files on disk (`disk_peak_mib`) are not in it",
+    ),
     Field(PEAK_SOURCE_FIELD, "", f"`{'`, `'.join(PEAK_SOURCES)}`: the first available on the device", "text"),
     Field("memory_method", "", "how the peaks were measured (`cpu_rss`, `torch_live`)", "object"),
+    Field(
+        DISK_PEAK_FIELD,
+        "MiB",
+        "largest `disk_total_mib` over the windows: the run's files on disk (keyframe store, map residency); "
+        "not in `peak_mem_mib`",
+    ),
 )
 METRIC_NAMES: tuple[str, ...] = tuple(f.name for f in METRIC_FIELDS)
 NUMERIC_METRICS: frozenset[str] = frozenset(f.name for f in METRIC_FIELDS if f.kind == "number")
@@ -262,6 +293,7 @@ def memory_summary(windows: Sequence[dict[str, Any]], device_type: str) -> dict[
         "gaussians_peak": peak("n_gaussians") or 0,
         "state_peak_mib": peak("state_mib"),
         **{key: peak(key) for key in MEMORY_PEAK_COLUMNS},
+        DISK_PEAK_FIELD: peak("disk_total_mib"),
     }
     sources = list(PEAK_SOURCES) if device_type == "cuda" else [s for s in PEAK_SOURCES if s != "cuda_alloc"]
     source = next((s for s in sources if summary[PEAK_SOURCES[s]] is not None), sources[0])

@@ -29,7 +29,6 @@ from bench.measure.timing import PhaseTimer  # noqa: E402
 from bench.run.loop import LoopOutcome, write_checkpoint  # noqa: E402
 from bench.run.setup import RunSetup  # noqa: E402
 from bench.slam.config import SlamConfig  # noqa: E402
-from bench.slam.keyframes import Keyframe  # noqa: E402
 from bench.slam.strategy import CheckedStrategy, load_strategy  # noqa: E402
 from bench.slam.system import System  # noqa: E402
 
@@ -56,7 +55,8 @@ def long_drive_system(n: int, keyframes: int, frames: int, hw: tuple[int, int] =
     system.map.optimizer.step()  # the Adam moments a mapping step leaves
     system.map.optimizer.zero_grad(set_to_none=True)
     rgb, depth = torch.zeros(h, w, 3), torch.zeros(h, w)
-    system.keyframes = [Keyframe(i * frames // keyframes, rgb, depth, torch.eye(4)) for i in range(keyframes)]
+    for i in range(keyframes):
+        system.keyframes.add(i * frames // keyframes, rgb, depth, torch.eye(4))
     system.poses = [torch.eye(4) for _ in range(frames)]
     return system
 

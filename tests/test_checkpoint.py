@@ -102,6 +102,29 @@ def test_sigkilled_run_resumes_to_the_same_results(
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("bound", ["slam.keyframes.window=2", "slam.keyframes.submap_reset_m=2"])
+def test_a_run_with_its_keyframe_store_on_disk_resumes_to_the_same_results(bound: str, tmp_path: Path) -> None:
+    """The checkpoint holds the store by frame index (and the submap's first pose); the resume writes its
+    files again from the sequence (those written after the checkpoint by the killed run go), and ends as
+    the run never stopped."""
+    disk = ["slam.keyframes.residency=disk", "slam.keyframes.precision=compact", bound]
+    ref = tmp_path / "ref"
+    done = bench([*TINY, *disk, f"hydra.run.dir={ref}"], tmp_path)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert not (ref / "keyframe_store").exists(), "a finished run removes its on-disk store"
+    at = checkpoint_frames(ref)
+    run_dir = tmp_path / "run"
+    args = [*TINY, *disk, f"hydra.run.dir={run_dir}"]
+    killed = bench(args, tmp_path, signal_at=f"{at[1] - 1}:KILL")  # keyframes after the checkpoint are on disk
+    assert killed.returncode == -9, killed.stderr[-3000:]
+    assert any((run_dir / "keyframe_store").iterdir())  # with a keyframe written past the checkpoint
+    resumed = bench(args, tmp_path)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert f"resuming {run_dir} from frame {at[0] + 1}" in resumed.stdout + resumed.stderr
+    same_results(run_dir, ref)
+
+
+@pytest.mark.slow
 def test_corrupt_checkpoint_is_one_log_line_and_a_fresh_run(references: dict[str, Path], tmp_path: Path) -> None:
     run_dir = tmp_path / "run"
     args = [*TINY, "+strategy=none", f"hydra.run.dir={run_dir}", "checkpoint.keep=1"]

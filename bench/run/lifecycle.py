@@ -280,7 +280,7 @@ def _execute(
 ):
     t_start = time.perf_counter()
     cfg = built.config
-    parts = build(cfg, device, seq, built)
+    parts = build(cfg, device, seq, built, out)
     parts.keys = record["run"]
     if cfg.viz.pruning:
         parts.viz = parts.system.on_prune = PruneViz(parts.system, out, cfg.viz.every, describe(parts.keys))
@@ -293,6 +293,7 @@ def _execute(
     drive = loop.run_frames(cfg, parts, out, record, start, preempt)
     with deferred_signals() if drive.stop is not None else contextlib.nullcontext():
         evaluation.finish(cfg, parts, drive, out, device, metrics)
+        parts.system.keyframes.close()  # the on-disk keyframe store: a resume writes it again from the sequence
         metrics["wall_s"] = round(time.perf_counter() - t_start, 3)  # the whole run: loading to figures
     return drive.status, drive.error, metrics, drive.stop
 

@@ -290,6 +290,7 @@ def keyframe_row(parts: RunSetup, res: FrameResult, frame_index: int, between: d
         **memory_parts(
             mem, live_mib, diag.get("state_map_bytes", state_bytes), state_bytes, system.keyframe_store_bytes()
         ),
+        **disk_parts(system.disk_bytes()),
         **{k: _round(diag.get(k)) for k in schema.PRUNE_QUARTILE_COLUMNS},
         **{k: diag.get(k, 0) + between[k] for k in schema.PRUNE_COUNT_COLUMNS},
         **{k: diag.get(k) for k in schema.SCORE_VIEW_COLUMNS},
@@ -329,6 +330,17 @@ def memory_parts(
         "mem_keyframes_mib": _round(kfs),
         "mem_other_mib": _round(other),
         "mem_work_mib": _round(peak - state - kfs - other),
+    }
+
+
+def disk_parts(disk_bytes: dict[str, int]) -> dict[str, float]:
+    """Files the run holds on disk at the window's end, by part (keyframes.csv ``disk_*``): exact bytes in
+    MiB to the byte (6 decimals), so the parts add up to the total."""
+    state, kfs = disk_bytes["state"], disk_bytes["keyframes"]
+    return {
+        "disk_state_mib": round(state / schema.MIB, 6),
+        "disk_keyframes_mib": round(kfs / schema.MIB, 6),
+        "disk_total_mib": round((state + kfs) / schema.MIB, 6),
     }
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -22,6 +23,7 @@ from bench.measure.memory import MemoryProbe
 from bench.measure.timing import PhaseTimer
 from bench.report.figures.pruned_run import PruneViz
 from bench.run import checkpoint as ckpt
+from bench.slam.keyframes import STORE_DIR
 from bench.slam.strategy import CheckedStrategy, Strategy
 from bench.slam.system import System
 
@@ -50,8 +52,11 @@ def open_seq(cfg: RunConfig) -> FrameSequence:
     return open_sequence(dataset_name(dataset), dataset)
 
 
-def build(cfg: RunConfig, device: torch.device, seq: FrameSequence, built: ValidatedRun) -> RunSetup:
-    """Make the SLAM system (seeded by ``repeatable``) for the opened sequence, around what validate built."""
+def build(
+    cfg: RunConfig, device: torch.device, seq: FrameSequence, built: ValidatedRun, out: Path | None = None
+) -> RunSetup:
+    """Make the SLAM system (seeded by ``repeatable``) for the opened sequence, around what validate built;
+    ``out``: the run dir, where ``slam.keyframes.residency=disk`` keeps its keyframe store."""
     strategy = built.strategy
     n_frames = min(len(seq), cfg.max_frames) if cfg.max_frames else len(seq)
     if n_frames < 2:
@@ -59,7 +64,10 @@ def build(cfg: RunConfig, device: torch.device, seq: FrameSequence, built: Valid
     warm_kernels(cfg.slam.raster_backend, device)  # before the memory probe: its buffers are not the run's
     timer = PhaseTimer(device)
     probe = MemoryProbe(device, torch_live=cfg.memory.torch_live)  # before the SLAM state is allocated
-    system = System(cfg.slam, seq.K, seq.height, seq.width, strategy, cfg.prune, device, timer=timer)
+    store = out / STORE_DIR if out is not None else None
+    system = System(
+        cfg.slam, seq.K, seq.height, seq.width, strategy, cfg.prune, device, timer=timer, keyframe_dir=store
+    )
     return RunSetup(seq, n_frames, strategy, system, timer, probe, lpips=built.lpips)
 
 

@@ -8,6 +8,7 @@ from bench.config.settings import as_config, check_rules, setting
 from bench.errors import ConfigError
 from bench.slam.frontend import FlowPnpConfig
 from bench.slam.gaussians import LearningRates
+from bench.slam.keyframes import KeyframeStoreConfig
 from bench.slam.raster import BACKENDS
 
 MAPPING_SCHEDULES = ("keyframes", "first")
@@ -118,6 +119,9 @@ class SlamConfig:
     kf_every: int = setting(3, "int", lo=1)  # a keyframe at least every N frames
     kf_min_trans_m: float = 3.0  # ... or once the camera moved this far since the last one
     kf_min_rot_deg: float = 15.0  # ... or turned this much
+    # how the keyframe store holds keyframes: precision, a window of the K newest, memory or disk
+    # (bench/slam/keyframes.py; slam.keyframes.NAME=VALUE)
+    keyframes: KeyframeStoreConfig = field(default_factory=KeyframeStoreConfig)
     # Densification (new Gaussians on a keyframe). The defaults re-seed far more eagerly than
     # SplaTAM; conf/slam/splatam.yaml holds SplaTAM's rule (silhouette < 0.5, no colour rule,
     # every pixel, opacity 0.5, 1 px seeds). After pruning, the eager rule refills the holes.
@@ -163,3 +167,4 @@ class SlamConfig:
         self.lrs = as_config(LearningRates, self.lrs, "slam.lrs")
         self.flow_pnp = as_config(FlowPnpConfig, self.flow_pnp, "slam.flow_pnp")
         self.densify = as_config(DensifyConfig, self.densify, "slam.densify")
+        self.keyframes = as_config(KeyframeStoreConfig, self.keyframes, "slam.keyframes")

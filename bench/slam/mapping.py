@@ -119,7 +119,7 @@ class Mapping(SystemState):
         if cfg.mapping_schedule == "first" and kf_idx > 0:
             return 0
         # the newest keyframes first; older ones keep the views of the early drive from being
-        # overwritten by later close-ups (see mapping_window)
+        # overwritten by later close-ups (see mapping_window); drawn from the keyframes held (slam.keyframes.window)
         window = self.keyframes[::-1][: cfg.mapping_window or len(self.keyframes)]
 
         def pick(it: int) -> Keyframe:
@@ -142,9 +142,9 @@ class Mapping(SystemState):
         def pick(it: int) -> Keyframe:
             if it and on_step is not None:
                 on_step()  # iteration it-1 is done
-            return self._rng.choice(self.keyframes)
+            return self._rng.choice(self.keyframes)  # those held (slam.keyframes.window)
 
-        self._optimize(len(self.keyframes) - 1, iters, pick)
+        self._optimize(self.keyframes.n_made - 1, iters, pick)
         if on_step is not None:
             on_step()
 
@@ -161,10 +161,11 @@ class Mapping(SystemState):
             out = self.render(kf.w2c, training=True, iteration=it)
             if self._map_grad2d and out.means2d.requires_grad:
                 out.means2d.retain_grad()
-            color = (out.color - kf.rgb).abs().mean()
+            rgb, depth = kf.images()  # float32, read back from disk with residency=disk
+            color = (out.color - rgb).abs().mean()
             if cfg.lambda_ssim_map > 0:
-                color = (1 - cfg.lambda_ssim_map) * color + cfg.lambda_ssim_map * dssim(out.color, kf.rgb)
-            loss = color + cfg.lambda_depth_map * self._depth_l1(out, kf.depth)
+                color = (1 - cfg.lambda_ssim_map) * color + cfg.lambda_ssim_map * dssim(out.color, rgb)
+            loss = color + cfg.lambda_depth_map * self._depth_l1(out, depth)
             extra = self.strategy.mapping_loss(MappingContext(kf_idx, it, self.map, self.map.state, True))
             if extra is not None:
                 loss = loss + extra

@@ -11,6 +11,7 @@ import random
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
@@ -21,7 +22,7 @@ from bench.errors import ConfigError, StrategyError
 from bench.slam.config import SlamConfig
 from bench.slam.frontend import to_gray_u8
 from bench.slam.gaussians import GaussianMap
-from bench.slam.keyframes import Keyframe, torch_owned
+from bench.slam.keyframes import KeyframeStore
 from bench.slam.lost import LostDetector
 from bench.slam.mapping import Mapping
 from bench.slam.prune_diagnostics import PruneDiagnostics
@@ -73,8 +74,10 @@ class System(Tracking, Mapping, PruneDiagnostics):
         prune: PruneConfig | float,
         device: torch.device,
         timer=None,
+        keyframe_dir: Path | None = None,
     ):
-        """``prune`` is the pruning schedule, or just the shared keep ratio (the default schedule)."""
+        """``prune`` is the pruning schedule, or just the shared keep ratio (the default schedule);
+        ``keyframe_dir``: the folder of the keyframe store with ``slam.keyframes.residency=disk``."""
         self.prune = prune if isinstance(prune, PruneConfig) else PruneConfig(keep_ratio=float(prune))
         self.cfg, self.strategy, self.keep_ratio, self.device = cfg, strategy, self.prune.keep_ratio, device
         # Adam's second moments and the gradients of far or faint Gaussians fall into float32's
@@ -101,7 +104,7 @@ class System(Tracking, Mapping, PruneDiagnostics):
         if self._map_grad2d:
             self.map.state["_map_grad2d_sum"] = torch.empty(0, device=device)
             self.map.state["_map_grad2d_n"] = torch.empty(0, device=device)
-        self.keyframes: list[Keyframe] = []
+        self.keyframes = KeyframeStore(cfg.keyframes, keyframe_dir)
         self.poses: list[torch.Tensor] = []  # w2c per processed frame
         self.frames_since_kf = 0
         self.lost = LostDetector(cfg)
@@ -143,7 +146,7 @@ class System(Tracking, Mapping, PruneDiagnostics):
     ) -> RasterOutput:
         g = self.map
         op = g.opacities
-        mask = self.strategy.render_mask(MappingContext(len(self.keyframes), iteration, g, g.state, training))
+        mask = self.strategy.render_mask(MappingContext(self.keyframes.n_made, iteration, g, g.state, training))
         if mask is not None:
             op = op * mask
         return rasterize(
@@ -192,11 +195,10 @@ class System(Tracking, Mapping, PruneDiagnostics):
             if self.prune.every == "frame" and self.keyframes:
                 # the next keyframe's index: nothing is new on a frame that added no Gaussian
                 with self._phase("pruning"):
-                    result.n_pruned, result.n_candidates = self._prune(len(self.keyframes), w2c, depth, result)
+                    result.n_pruned, result.n_candidates = self._prune(self.keyframes.n_made, w2c, depth, result)
                 result.prune_s = time.perf_counter() - t1
         else:
-            kf_idx = len(self.keyframes)
-            self.keyframes.append(Keyframe(frame.index, torch_owned(rgb), depth, w2c))
+            kf_idx = self.keyframes.add(frame.index, rgb, depth, w2c).kf
             with self._phase("mapping"):
                 result.n_added = self._densify(rgb, depth, w2c, kf_idx)
                 result.diag["n_reseeded_holes"] = self._reseeded
@@ -223,7 +225,9 @@ class System(Tracking, Mapping, PruneDiagnostics):
     def state_dict(self) -> dict[str, Any]:
         """Everything that decides the next frames, as tensors and plain values (``torch.load(weights_only=True)``
         reads it back). Keyframe images are not stored: ``load_state_dict`` re-reads them from the sequence
-        by index, which is what keeps a checkpoint small (a keyframe's float images are its bulk).
+        by index, which is what keeps a checkpoint small (a keyframe's float images are its bulk); with
+        ``slam.keyframes.residency=disk`` it writes the store's files again from them.
+        The keyframes held are there with their numbers (a window leaves out the dropped ones).
         Per-frame lists go in as one tensor or string each: ``torch.save`` pays per object, and a long
         drive has thousands of poses."""
         g = self.map
@@ -246,7 +250,10 @@ class System(Tracking, Mapping, PruneDiagnostics):
             "keyframes": {
                 "index": torch.tensor([kf.index for kf in self.keyframes], dtype=torch.long),
                 "w2c": _stack([kf.w2c for kf in self.keyframes]),
-            },  # [K], [K, 4, 4]
+                "kf": torch.tensor([kf.kf for kf in self.keyframes], dtype=torch.long),
+                "count": self.keyframes.n_made,
+                "submap_anchor": self.keyframes.submap_anchor,  # [4, 4] or None (slam.keyframes.submap_reset_*)
+            },  # [K], [K, 4, 4], [K]
             "poses": _stack(self.poses),  # [F, 4, 4]
             "frames_since_kf": self.frames_since_kf,
             "bad_frames": self.lost.bad_frames,
@@ -281,10 +288,13 @@ class System(Tracking, Mapping, PruneDiagnostics):
                 }
         g.birth_kf = sd["birth_kf"].to(self.device)
         g.state = {k: v.to(self.device) for k, v in sd["state"].items()}
-        self.keyframes = []
-        for index, w2c in zip(sd["keyframes"]["index"].tolist(), sd["keyframes"]["w2c"], strict=True):
-            rgb, depth = self.observe(frame_at(index))
-            self.keyframes.append(Keyframe(index, torch_owned(rgb), depth, w2c.to(self.device)))
+        kfs = sd["keyframes"]
+        indices = kfs["index"].tolist()
+        numbers = kfs["kf"].tolist() if "kf" in kfs else list(range(len(indices)))
+        held = [(kf, index, w2c.to(self.device)) for kf, index, w2c in zip(numbers, indices, kfs["w2c"], strict=True)]
+        self.keyframes.restore(kfs.get("count", len(indices)), held, lambda i: self.observe(frame_at(i)))
+        anchor = kfs.get("submap_anchor")
+        self.keyframes.submap_anchor = None if anchor is None else anchor.to(self.device)
         self.poses = [p.to(self.device) for p in sd["poses"]]
         self.frames_since_kf, self.lost.bad_frames = sd["frames_since_kf"], sd["bad_frames"]
         self.lost.depth_recent = sd["depth_recent"].tolist()
@@ -370,7 +380,7 @@ class System(Tracking, Mapping, PruneDiagnostics):
         """PruneContext.render_views: (keyframe index, render) of each view ``which`` selects."""
         if which not in SCORE_VIEWS:
             raise StrategyError(f"score views: expected one of {', '.join(SCORE_VIEWS)}, found {which!r}")
-        held = list(enumerate(self.keyframes))
+        held = [(kf.kf, kf) for kf in self.keyframes]  # a keyframe window holds only the newest
         if which == "window":  # the views mapping optimises over (bench.slam.mapping._map)
             held = held[::-1][: self.cfg.mapping_window or len(held)][::-1]
         elif which == "current":
@@ -381,8 +391,16 @@ class System(Tracking, Mapping, PruneDiagnostics):
             yield i, out
 
     def keyframe_store_bytes(self) -> int:
-        """Exact bytes of the keyframe store: every keyframe's colour, depth and pose."""
-        return int(sum(t.numel() * t.element_size() for kf in self.keyframes for t in (kf.rgb, kf.depth, kf.w2c)))
+        """Exact bytes of the keyframe store live in memory: each held keyframe's colour and depth at their
+        stored dtype (none for one on disk) and its pose."""
+        return self.keyframes.memory_bytes()
+
+    def disk_bytes(self) -> dict[str, int]:
+        """Exact bytes of the files the run holds on disk now, by part: the Gaussian state (map residency,
+        when a residency policy is attached as ``_residency``) and the keyframe store."""
+        residency = getattr(self, "_residency", None)  # map residency, where a policy attached one
+        state = residency.disk_bytes() if residency is not None else 0
+        return {"state": int(state), "keyframes": self.keyframes.disk_bytes()}
 
 
 def index_ranges(indices: list[int]) -> str:

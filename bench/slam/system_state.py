@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from bench.slam.config import SlamConfig
     from bench.slam.frontend import FlowPnpConfig
     from bench.slam.gaussians import GaussianMap
-    from bench.slam.keyframes import Keyframe
+    from bench.slam.keyframes import KeyframeStore
     from bench.slam.lost import LostDetector
     from bench.slam.raster import RasterOutput
     from bench.slam.strategy import PruneConfig, PruneContext, Strategy
@@ -38,7 +38,7 @@ class SystemState:
     W: int
     map: GaussianMap
     _map_grad2d: bool
-    keyframes: list[Keyframe]
+    keyframes: KeyframeStore
     poses: list[torch.Tensor]
     frames_since_kf: int
     lost: LostDetector

@@ -178,4 +178,6 @@ class Tracking(SystemState):
         st = self.map.state
         st["_track_grad_sum"] += grad_sum
         st["_track_grad_n"] += grad_n
-        self.strategy.on_tracking_step(TrackingContext(frame_index, len(self.keyframes), self.map, st, out, grad_norm))
+        self.strategy.on_tracking_step(
+            TrackingContext(frame_index, self.keyframes.n_made, self.map, st, out, grad_norm)
+        )

@@ -47,9 +47,9 @@ class PruneViz:
     def __call__(self, kf_idx: int, w2c: torch.Tensor, before: RasterOutput, keep: torch.Tensor | None) -> None:
         system = self.system
         # keyframe prunes only (prune.every=frame also prunes between keyframes, with the next index)
-        if kf_idx == 0 or kf_idx % self.every or kf_idx != len(system.keyframes) - 1:
+        if kf_idx == 0 or kf_idx % self.every or kf_idx != system.keyframes.n_made - 1:
             return
-        kf = system.keyframes[kf_idx]
+        kf = system.keyframes[-1]  # the newest: keyframe kf_idx
         after = system.render(w2c).color  # [H, W, 3], the map is pruned by now
         pruned = torch.zeros_like(before.depths, dtype=torch.bool) if keep is None else ~keep  # [N before]
         uv = before.means2d[pruned]  # [P, 2] px
