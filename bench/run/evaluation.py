@@ -37,6 +37,8 @@ def finish(cfg: RunConfig, parts: RunSetup, drive: LoopOutcome, out: Path, devic
     partial = drive.status in ("interrupted", "failed")
     n_done = len(drive.timestamps_s)
     metrics: dict[str, Any] = {"slam_wall_s": round(drive.loop_s, 3), "warmup_s": round(drive.warmup_s, 3)}
+    if not partial:  # slam.residency: the whole map is refined, rendered and written, not the live part alone
+        system.restore_all()
     if cfg.slam.refine_iters > 0 and not partial:
         with timer.phase("refine"), Phase("refine", cfg.slam.refine_iters, "iteration", cfg.progress) as bar:
             system.refine(cfg.slam.refine_iters, on_step=bar.update)

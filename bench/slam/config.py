@@ -8,6 +8,7 @@ from bench.config.settings import as_config, check_rules, setting
 from bench.slam.frontend import FlowPnpConfig
 from bench.slam.gaussians import LearningRates
 from bench.slam.raster import BACKENDS
+from bench.slam.residency import ResidencyConfig
 
 MAPPING_SCHEDULES = ("keyframes", "first")
 TRACKING_MASKS = ("current", "init")
@@ -94,6 +95,8 @@ class SlamConfig:
     name: str = "default"  # the preset's name (conf/slam/NAME.yaml), recorded as slam_preset in metrics.json
     max_depth_m: float = 150.0  # observed depth beyond this is ignored
     lrs: LearningRates = field(default_factory=LearningRates)  # slam.lrs.NAME=VALUE
+    # which Gaussians wait on disk while the camera is far from them (bench/slam/residency.py); off = none
+    residency: ResidencyConfig = field(default_factory=ResidencyConfig)  # slam.residency.NAME=VALUE
     # what declares tracking lost (besides a non-finite pose and a collapsed silhouette), for lost_patience
     # consecutive frames: "depth" = the depth L1 on confidently mapped pixels (those tracking uses, nearer than
     # depth_loss_max_m) above lost_depth_ratio x its median over the last lost_baseline_frames frames that were
@@ -119,3 +122,4 @@ class SlamConfig:
         # a mapping of overrides (SlamConfig(lrs={"colors": 0.5}) from Python) becomes the typed group
         self.lrs = as_config(LearningRates, self.lrs, "slam.lrs")
         self.flow_pnp = as_config(FlowPnpConfig, self.flow_pnp, "slam.flow_pnp")
+        self.residency = as_config(ResidencyConfig, self.residency, "slam.residency")
