@@ -98,6 +98,23 @@ def test_hysteresis_keeps_an_anchor_on_disk_until_the_camera_is_nearer(tmp_path:
     assert res.check(g, at(2.5)) == (4, 4)  # anchor 0 back (2.5 m); anchor 2 at 5.5 m goes
 
 
+def test_keep_in_view_holds_back_what_the_camera_sees(tmp_path: Path) -> None:
+    """Anchor 0's Gaussians sit at z = 0-3 m: a camera at z = -1 m looking down +z sees those on its axis."""
+    g = make_map()
+    g.params["means"].data[:, :2] = 0.0  # every centre on the camera's axis
+    g.params["means"].data[1, 0] = 50.0  # ... but one, far off to the side
+    res = residency(tmp_path, distance_m=0.5)
+    K = torch.tensor([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]])
+    restored, written = res.check(g, at(-1.0), K, (48, 64))
+    assert (restored, written) == (0, 1) and res.n_evicted() == 1  # the one out of the image
+    assert 1.0 not in g.params["means"][:, 2].tolist()  # it was Gaussian 1 (z = 1)
+    res_all = MapResidency(ResidencyConfig(policy="distance", distance_m=0.5, keep_in_view=False), tmp_path / "b")
+    for kf in range(3):
+        res_all.note_keyframe(kf, at(4.0 * kf))
+    n = len(g)
+    assert res_all.check(g, at(-1.0), K, (48, 64)) == (0, n) and len(g) == 0
+
+
 def test_a_checkpoint_holds_the_gaussians_on_disk_and_rewrites_them(tmp_path: Path) -> None:
     g = make_map()
     res = residency(tmp_path)
