@@ -73,7 +73,10 @@ class Mapping(SystemState):
             return 0
         # the newest keyframes first; older ones keep the views of the early drive from being
         # overwritten by later close-ups (see mapping_window)
-        window = self.keyframes[::-1][: cfg.mapping_window or len(self.keyframes)]
+        held = list(enumerate(self.keyframes))[::-1][: cfg.mapping_window or len(self.keyframes)]
+        if self._residency is not None:  # a view whose part of the map is on disk would pull the live map into it
+            held = [(i, kf) for i, kf in held if self._residency.resident(i)]
+        window = [kf for _, kf in held]
 
         def pick(it: int) -> Keyframe:
             return window[0] if it % 2 == 0 or len(window) == 1 else self._rng.choice(window[1:])
@@ -121,6 +124,8 @@ class Mapping(SystemState):
             extra = self.strategy.mapping_loss(MappingContext(kf_idx, it, self.map, self.map.state, True))
             if extra is not None:
                 loss = loss + extra
+            if not loss.requires_grad:  # no live Gaussian in the view (slam.residency): nothing to step
+                continue
             opt.zero_grad(set_to_none=True)
             loss.backward()
             if self._map_grad2d and out.means2d.grad is not None:

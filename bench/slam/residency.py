@@ -94,6 +94,7 @@ class MapResidency:
         self.dir = directory
         self.centres: list[torch.Tensor] = []  # per keyframe index, its camera centre [3] (float64)
         self.on_disk: dict[int, tuple[int, int]] = {}  # anchor keyframe -> (Gaussians, file bytes)
+        self.far: set[int] = set()  # keyframes farther than distance_m at the last check
 
     # ------------------------------------------------------------------------------------------ where
     def use_dir(self, directory: Path) -> None:
@@ -135,14 +136,20 @@ class MapResidency:
         near = sorted(a for a in self.on_disk if float(dist[a]) <= self.cfg.distance_m - self.cfg.hysteresis_m)
         restored = sum(self._bring_back(gmap, a) for a in near)
         anchors = torch.unique(gmap.birth_kf.cpu()).tolist()  # ascending
-        far = [a for a in anchors if float(dist[a]) > self.cfg.distance_m]
+        self.far = {k for k in range(len(self.centres)) if float(dist[k]) > self.cfg.distance_m}
+        far = [a for a in anchors if a in self.far]
         stays = None
         if far and self.cfg.keep_in_view and K is not None:
             stays = in_image(gmap.means.detach(), w2c, K, hw)
         return restored, self._write_out(gmap, far, stays)
 
+    def resident(self, kf_idx: int) -> bool:
+        """Whether mapping may draw keyframe ``kf_idx``: not farther than ``distance_m`` at the last check."""
+        return kf_idx not in self.far
+
     def restore_all(self, gmap: GaussianMap) -> int:
         """Every Gaussian on disk back in the map (before the evaluation); the store is left empty."""
+        self.far = set()
         return sum(self._bring_back(gmap, a) for a in sorted(self.on_disk))
 
     def _write_out(self, gmap: GaussianMap, anchors: list[int], stays: torch.Tensor | None = None) -> int:
@@ -199,11 +206,13 @@ class MapResidency:
         return {
             "centres": torch.stack(self.centres) if self.centres else torch.zeros(0, 3, dtype=torch.float64),
             "chunks": {str(a): self._read(a) for a in sorted(self.on_disk)},
+            "far": torch.tensor(sorted(self.far), dtype=torch.long),
         }
 
     def load_state_dict(self, sd: dict[str, Any]) -> None:
         """Undo ``state_dict``: the store's files are written again from the checkpoint."""
         self.centres = list(sd["centres"])
+        self.far = set(sd["far"].tolist())
         for a in sorted(self.on_disk):
             self._path(a).unlink(missing_ok=True)
         self.on_disk = {}

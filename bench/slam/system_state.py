@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from bench.slam.keyframes import Keyframe
     from bench.slam.lost import LostDetector
     from bench.slam.raster import RasterOutput
+    from bench.slam.residency import MapResidency
     from bench.slam.strategy import PruneConfig, Strategy
 
 
@@ -55,6 +56,7 @@ class SystemState:
     _holes: list[np.ndarray]
     _reseeded: int
     track_log: list[tuple[int, float, float, float]]
+    _residency: MapResidency | None
 
     if TYPE_CHECKING:
         # defined by System (render) and by the other halves (_depth_l1 in Tracking, _count_in_holes in
