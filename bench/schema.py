@@ -67,6 +67,13 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
     ),
     Field("n_pruned", "", "Gaussians removed by the strategy (with `prune.every=frame`: since the last keyframe)"),
     Field("n_candidates", "", "Gaussians the strategy could prune (in view, not new), over those prune calls"),
+    Field(
+        "n_evicted",
+        "",
+        "Gaussians on disk at the window's end (`slam.residency`; not in `n_gaussians` and in no render); "
+        "0 with the policy off",
+    ),
+    Field("n_restored", "", "Gaussians `slam.residency` brought back from disk at this keyframe, before densifying"),
     Field("state_bytes", "B", "exact bytes of Gaussian state: params, grads, Adam moments, strategy state"),
     Field("state_mib", "MiB", "`state_bytes` in MiB"),
     Field("cpu_rss_peak_mib", "MiB", "process peak RSS in the window (VmHWM, or sampled)"),

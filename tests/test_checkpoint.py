@@ -310,3 +310,27 @@ def test_a_resumed_run_draws_the_pictures_of_keyframes_before_the_kill(
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     kfs = [int(r["kf"]) for r in keyframe_rows(references["pocket"]) if int(r["kf"]) > 0]
     assert sorted(p.name for p in run_dir.glob("pruned_kf*.png")) == [f"pruned_kf{k:03d}.png" for k in kfs]
+
+
+@pytest.mark.slow
+def test_a_run_with_map_residency_resumes_to_the_same_results(tmp_path: Path) -> None:
+    """The Gaussians on disk at the checkpoint travel in it: killed after the checkpoint that follows an
+    eviction, the run resumes (its map_store written again from the checkpoint) and ends as the run never
+    stopped, the Gaussians brought back for the evaluation included."""
+    args = [*TINY, "slam.residency.policy=distance", "slam.residency.distance_m=1.0"]
+    ref = tmp_path / "ref"
+    proc = bench([*args, f"hydra.run.dir={ref}"], tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    at = checkpoint_frames(ref)
+    evicted = {int(r["frame"]): int(r["n_evicted"]) for r in keyframe_rows(ref)}
+    assert evicted[at[0]] > 0, f"the first checkpoint must hold Gaussians on disk, found {evicted}"
+    run_dir = tmp_path / "run"
+    killed = bench([*args, f"hydra.run.dir={run_dir}"], tmp_path, signal_at=f"{at[1] - 1}:KILL")
+    assert killed.returncode == -9, killed.stderr[-3000:]
+    (run_dir / "map_store" / next(p.name for p in (run_dir / "map_store").glob("*.pt"))).unlink()  # rewritten
+    resumed = bench([*args, f"hydra.run.dir={run_dir}"], tmp_path)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert f"resuming {run_dir} from frame {at[0] + 1}" in resumed.stdout + resumed.stderr
+    same_results(run_dir, ref)
+    assert (run_dir / "map.ply").read_bytes() == (ref / "map.ply").read_bytes()
+    assert not list((run_dir / "map_store").glob("*.pt"))

@@ -47,6 +47,8 @@ def finish(
     n_done = len(drive.timestamps_s)
     metrics = {} if metrics is None else metrics
     metrics.update({"slam_wall_s": round(drive.loop_s, 3), "warmup_s": round(drive.warmup_s, 3)})
+    if not partial:  # slam.residency: the whole map is refined, rendered and written, not the live part alone
+        system.restore_all()
     warmup = cfg.warmup_frames
     metrics["fps"] = round((n_done - warmup) / drive.loop_s, 4) if drive.loop_s > 0 and n_done > warmup else None
     # per-phase seconds of the frame loop, warm-up frames included: they sum to about

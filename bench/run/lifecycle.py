@@ -282,6 +282,7 @@ def _execute(
     cfg = built.config
     parts = build(cfg, device, seq, built, out)
     parts.keys = record["run"]
+    parts.system.use_run_dir(out)  # slam.residency's files; a resumed run's come back from its checkpoint
     if cfg.viz.pruning:
         parts.viz = parts.system.on_prune = PruneViz(parts.system, out, cfg.viz.every, describe(parts.keys))
     metrics: dict[str, Any] = {"num_frames": 0, "num_keyframes": 0}

@@ -281,6 +281,8 @@ def keyframe_row(parts: RunSetup, res: FrameResult, frame_index: int, between: d
         **{k: res.diag.get(k, 0) for k in schema.DENSIFY_COUNT_COLUMNS},
         "n_pruned": res.n_pruned + between["n_pruned"],
         "n_candidates": res.n_candidates + between["n_candidates"],
+        "n_evicted": system.n_evicted(),
+        "n_restored": res.n_restored,
         "state_bytes": state_bytes,
         "state_mib": round(state_bytes / schema.MIB, 4),
         **{k: _round(v) for k, v in mem.items()},

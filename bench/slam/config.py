@@ -10,6 +10,7 @@ from bench.slam.frontend import FlowPnpConfig
 from bench.slam.gaussians import LearningRates
 from bench.slam.keyframes import KeyframeStoreConfig
 from bench.slam.raster import BACKENDS
+from bench.slam.residency import ResidencyConfig
 
 MAPPING_SCHEDULES = ("keyframes", "first")
 TRACKING_MASKS = ("current", "init")
@@ -141,6 +142,8 @@ class SlamConfig:
     name: str = "default"  # the preset's name (conf/slam/NAME.yaml), recorded as slam_preset in metrics.json
     max_depth_m: float = 150.0  # observed depth beyond this is ignored
     lrs: LearningRates = field(default_factory=LearningRates)  # slam.lrs.NAME=VALUE
+    # which Gaussians wait on disk while the camera is far from them (bench/slam/residency.py); off = none
+    residency: ResidencyConfig = field(default_factory=ResidencyConfig)  # slam.residency.NAME=VALUE
     # what declares tracking lost (besides a non-finite pose and a collapsed silhouette), for lost_patience
     # consecutive frames: "depth" = the depth L1 on confidently mapped pixels (those tracking uses, nearer than
     # depth_loss_max_m) above lost_depth_ratio x its median over the last lost_baseline_frames frames that were
@@ -168,3 +171,4 @@ class SlamConfig:
         self.flow_pnp = as_config(FlowPnpConfig, self.flow_pnp, "slam.flow_pnp")
         self.densify = as_config(DensifyConfig, self.densify, "slam.densify")
         self.keyframes = as_config(KeyframeStoreConfig, self.keyframes, "slam.keyframes")
+        self.residency = as_config(ResidencyConfig, self.residency, "slam.residency")

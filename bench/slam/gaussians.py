@@ -147,6 +147,54 @@ class GaussianMap:
             self.state[k] = v[keep]
         return removed
 
+    def take(self, mask: torch.Tensor) -> dict[str, dict[str, torch.Tensor] | torch.Tensor]:
+        """Copies of the ``mask`` [N] bool rows of everything per-Gaussian, in map order: params, Adam
+        moments (where Adam holds them), birth keyframe and state. Nothing changes here: the caller
+        removes the rows through ``remove``, the one removal path (map residency writes them to disk)."""
+        moments: dict[str, torch.Tensor] = {}
+        for group in self.optimizer.param_groups:
+            st = self.optimizer.state.get(group["params"][0])
+            if st:
+                for key in ("exp_avg", "exp_avg_sq"):
+                    moments[f"{group['name']}.{key}"] = st[key][mask].clone()
+        return {
+            "params": {k: p.detach()[mask].clone() for k, p in self.params.items()},
+            "moments": moments,
+            "birth_kf": self.birth_kf[mask].clone(),
+            "state": {k: v[mask].clone() for k, v in self.state.items()},
+        }
+
+    def extend(self, chunk: dict) -> int:
+        """Append rows that ``take`` copied, with their moments and state (map residency brings them back).
+
+        Where Adam holds no moments now (none yet, or cleared) the chunk's are dropped: Adam starts them
+        at zero for every row at its next step; where the chunk has none, its rows get zero moments as
+        ``add`` gives. Adam's step count is one per parameter and stays the live map's."""
+        n = int(chunk["birth_kf"].shape[0])
+        if n == 0:
+            return 0
+        if set(chunk["params"]) != set(self.params):
+            raise ValueError(f"map parameters: expected {sorted(self.params)}, found {sorted(chunk['params'])}")
+        for group in self.optimizer.param_groups:
+            name = group["name"]
+            old = group["params"][0]
+            rows = chunk["params"][name].to(device=self.device, dtype=old.dtype)
+            new = torch.nn.Parameter(torch.cat([old.detach(), rows], 0), requires_grad=old.requires_grad)
+            st = self.optimizer.state.pop(old, None)
+            if st:
+                for key in ("exp_avg", "exp_avg_sq"):
+                    more = chunk["moments"].get(f"{name}.{key}")
+                    if more is None:
+                        more = torch.zeros((n, *st[key].shape[1:]), dtype=st[key].dtype)
+                    st[key] = torch.cat([st[key], more.to(device=self.device, dtype=st[key].dtype)], 0)
+                self.optimizer.state[new] = st
+            group["params"][0] = new
+            self.params[name] = new
+        self.birth_kf = torch.cat([self.birth_kf, chunk["birth_kf"].to(self.device)])
+        for k, v in self.state.items():
+            self.state[k] = torch.cat([v, chunk["state"][k].to(device=self.device, dtype=v.dtype)])
+        return n
+
     def state_bytes(self) -> int:
         """Exact bytes of Gaussian state: params, grads, Adam moments and per-Gaussian state."""
         tensors: list[torch.Tensor] = [self.birth_kf, *self.state.values()]

@@ -121,6 +121,8 @@ class Mapping(SystemState):
         # the newest keyframes first; older ones keep the views of the early drive from being
         # overwritten by later close-ups (see mapping_window); drawn from the keyframes held (slam.keyframes.window)
         window = self.keyframes[::-1][: cfg.mapping_window or len(self.keyframes)]
+        if self._residency is not None:  # a view whose part of the map is on disk would pull the live map into it
+            window = [kf for kf in window if self._residency.resident(kf.kf)]
 
         def pick(it: int) -> Keyframe:
             return window[0] if it % 2 == 0 or len(window) == 1 else self._rng.choice(window[1:])
@@ -169,6 +171,8 @@ class Mapping(SystemState):
             extra = self.strategy.mapping_loss(MappingContext(kf_idx, it, self.map, self.map.state, True))
             if extra is not None:
                 loss = loss + extra
+            if not loss.requires_grad:  # no live Gaussian in the view (slam.residency): nothing to step
+                continue
             opt.zero_grad(set_to_none=True)
             loss.backward()
             if self._map_grad2d and out.means2d.grad is not None:

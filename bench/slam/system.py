@@ -27,6 +27,7 @@ from bench.slam.lost import LostDetector
 from bench.slam.mapping import Mapping
 from bench.slam.prune_diagnostics import PruneDiagnostics
 from bench.slam.raster import EXTRA_STATS, RasterOutput, rasterize, resolve_backend
+from bench.slam.residency import STORE_DIR, MapResidency
 from bench.slam.se3 import inverse, so3_log
 from bench.slam.strategy import (
     READS_MAPPING_GRAD2D,
@@ -47,6 +48,7 @@ class FrameResult:
     n_added: int = 0
     n_pruned: int = 0
     n_candidates: int = 0  # Gaussians the strategy could prune (in view, not new), over this frame's prune calls
+    n_restored: int = 0  # Gaussians map residency brought back from disk at this keyframe
     track_loss: float = 0.0
     track_s: float = 0.0
     map_s: float = 0.0
@@ -135,6 +137,21 @@ class System(Tracking, Mapping, PruneDiagnostics):
         # per tracked frame, what the loss detector reads: (frame, colour L1 on confident pixels,
         # fraction of confident pixels, depth L1 in m on confident pixels with depth); a few floats per frame
         self.track_log: list[tuple[int, float, float, float]] = []
+        # slam.residency: the Gaussians on disk (bench/slam/residency.py); None while the policy is off
+        self._residency = MapResidency(cfg.residency) if cfg.residency.policy != "off" else None
+
+    def use_run_dir(self, out: Path) -> None:
+        """Map residency writes its files under the run dir ``out`` (``map_store/``)."""
+        if self._residency is not None:
+            self._residency.use_dir(out / STORE_DIR)
+
+    def n_evicted(self) -> int:
+        """Gaussians map residency holds on disk now (keyframes.csv ``n_evicted``)."""
+        return 0 if self._residency is None else self._residency.n_evicted()
+
+    def restore_all(self) -> int:
+        """Every Gaussian map residency holds on disk back in the map (before the final evaluation)."""
+        return 0 if self._residency is None else self._residency.restore_all(self.map)
 
     def render(
         self,
@@ -199,6 +216,11 @@ class System(Tracking, Mapping, PruneDiagnostics):
                 result.prune_s = time.perf_counter() - t1
         else:
             kf_idx = self.keyframes.add(frame.index, rgb, depth, w2c).kf
+            if self._residency is not None:  # before densification: a revisited street is back before it is seeded
+                self._residency.note_keyframe(kf_idx, w2c)
+                if self._residency.due(kf_idx):
+                    with self._phase("residency"):
+                        result.n_restored, _ = self._residency.check(self.map, w2c, self.K, (self.H, self.W))
             with self._phase("mapping"):
                 result.n_added = self._densify(rgb, depth, w2c, kf_idx)
                 result.diag["n_reseeded_holes"] = self._reseeded
@@ -267,6 +289,8 @@ class System(Tracking, Mapping, PruneDiagnostics):
             # prune diagnostics: the opened pixels' world points awaiting the next densification [M, 3]
             "holes": torch.from_numpy(np.concatenate(self._holes) if self._holes else np.zeros((0, 3))),
             "track_log": torch.tensor(self.track_log, dtype=torch.float64).reshape(-1, 4),  # [F, 4]
+            # the Gaussians on disk travel in the checkpoint (MapResidency.state_dict says why)
+            **({} if self._residency is None else {"residency": self._residency.state_dict()}),
         }
 
     def load_state_dict(self, sd: dict[str, Any], frame_at: Callable[[int], Frame]) -> None:
@@ -308,6 +332,10 @@ class System(Tracking, Mapping, PruneDiagnostics):
         holes = sd["holes"].numpy()
         self._holes = [holes] if len(holes) else []
         self.track_log = [(int(f), c, s, d) for f, c, s, d in sd["track_log"].tolist()]
+        if self._residency is not None:
+            if "residency" not in sd:
+                raise ValueError("map residency: expected its store in the checkpoint, found none")
+            self._residency.load_state_dict(sd["residency"])
 
     def _is_keyframe(self, w2c: torch.Tensor) -> bool:
         if not self.keyframes:

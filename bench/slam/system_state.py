@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from bench.slam.keyframes import KeyframeStore
     from bench.slam.lost import LostDetector
     from bench.slam.raster import RasterOutput
+    from bench.slam.residency import MapResidency
     from bench.slam.strategy import PruneConfig, PruneContext, Strategy
 
 
@@ -58,6 +59,7 @@ class SystemState:
     _cap_removed: int  # Gaussians the last densification removed to make room at the cap
     _densify_start: int | None  # the map's size after keyframe 0 (slam.densify.budget=taming's start)
     track_log: list[tuple[int, float, float, float]]
+    _residency: MapResidency | None
 
     if TYPE_CHECKING:
         # defined by System (render) and by the other halves (_depth_l1 in Tracking, _count_in_holes in
