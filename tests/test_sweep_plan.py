@@ -166,3 +166,24 @@ def test_a_bad_setting_every_job_shares_is_refused_before_the_sweep(
     assert res.code == 2, res.stderr
     assert res.stderr.strip() == res.error_line and says in res.error_line
     assert not (tmp_path / "sweep").exists() and runs == []
+
+
+def test_a_job_whose_dir_name_is_too_long_for_the_file_system_gets_a_short_one(
+    tmp_path: Path, runs: list[Path]
+) -> None:
+    """Many settings name a dir longer than the 255 bytes a file name may hold: the job still runs, in a
+    dir of its own whose name is the long name cut and a hash of the whole, the same on every rerun."""
+    from bench.sweep.plan import NAME_MAX_BYTES
+
+    milestones = "eval.at_frames=[" + ",".join(str(n) for n in range(3, 102)) + "]"  # 300 bytes in the name
+    args = ["--multirun", "+experiment=tiny", "seed=0,1", milestones, f"hydra.sweep.dir={tmp_path}"]
+    res = run_cli(args)
+    assert res.code == 0, res.stderr
+    assert len(runs) == 2 and len(set(runs)) == 2, runs
+    for d in runs:
+        assert len(d.name.encode()) <= NAME_MAX_BYTES and "~" in d.name, d.name
+        assert d.parent == tmp_path.resolve() and (d / "metrics.json").is_file()
+    first = list(runs)
+    runs.clear()
+    assert run_cli(args).code == 0
+    assert runs == first  # the same dirs on a rerun

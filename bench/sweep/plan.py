@@ -9,10 +9,15 @@ Hydra names a job's dir by its overrides less ``hydra.job.config.override_dirnam
 of one sweep that differ only in such a key would share a dir, and the later would overwrite or
 skip the earlier. ``own_dirs`` gives each of them a dir of its own by naming the differing keys
 too, as a per-job ``hydra.sweep.subdir``; jobs that share no dir keep Hydra's name.
+
+A name longer than a file system allows (255 bytes on ext4, XFS, APFS; a study of memory policies
+names a dozen settings) is cut and ends in a hash of the whole name (``short_name``), so the job still
+gets a dir of its own and the same dir on every rerun; names that fit are Hydra's, unchanged.
 """
 
 from __future__ import annotations
 
+import hashlib
 import re
 from collections import defaultdict
 from collections.abc import Sequence
@@ -23,6 +28,17 @@ from omegaconf import DictConfig, OmegaConf
 
 _OVERRIDE_DIRNAME = "${hydra:job.override_dirname}"
 SUBDIR_KEY = "hydra.sweep.subdir"
+NAME_MAX_BYTES = 255  # one path component (NAME_MAX on Linux and macOS file systems)
+_DIGEST_CHARS = 12
+
+
+def short_name(name: str) -> str:
+    """``name`` when it fits in ``NAME_MAX_BYTES``, else its first bytes, ``~`` and a hash of the whole name."""
+    raw = name.encode()
+    if len(raw) <= NAME_MAX_BYTES:
+        return name
+    head = raw[: NAME_MAX_BYTES - _DIGEST_CHARS - 1].decode(errors="ignore")
+    return f"{head}~{hashlib.sha1(raw).hexdigest()[:_DIGEST_CHARS]}"
 
 
 def planned(config: DictConfig, arguments: Sequence[str]) -> list[list[str]]:
@@ -74,10 +90,11 @@ def own_dirs(config: DictConfig, jobs: list[list[str]]) -> list[list[str]]:
         groups[(str(sweep_dir(config, job)), names[i])].append(i)
     for members in groups.values():
         differ = [k for k in excluded if len({values[m].get(k) for m in members}) > 1]
-        for m in members if differ else ():
+        for m in members:
             extra = [f"{k}{od.kv_sep}{_safe(values[m][k])}" for k in differ if k in values[m]]
             subdir = od.item_sep.join([names[m], *extra] if names[m] else extra)
-            jobs[m] = [*jobs[m], f"{SUBDIR_KEY}='{_quoted(subdir)}'"]
+            if differ or short_name(subdir) != subdir:
+                jobs[m] = [*jobs[m], f"{SUBDIR_KEY}='{_quoted(short_name(subdir))}'"]
     return jobs
 
 
