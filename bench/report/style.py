@@ -70,6 +70,7 @@ class Panel:
     variants: tuple[Variant, ...]
     preset: str
     usual_ratio: float | None = None  # the keep ratio the preset's main panel shows: solid in a ratio panel too
+    by_policy: bool = False  # a panel of memory policies: each strategy's policies take the styles in turn
 
 
 def _preset_title(preset: str, several: bool) -> str:
@@ -85,7 +86,8 @@ def panel_groups(found: Sequence[Variant]) -> list[Panel]:
     several = len(presets) > 1
     panels: list[Panel] = []
     for preset in presets:
-        mine = [v for v in found if v.slam_preset == preset]
+        everything = [v for v in found if v.slam_preset == preset]
+        mine = [v for v in everything if not v.memory_policy]  # today's system; memory policies get their panel
         per_strategy = Counter(v.strategy for v in mine)
         ratios = Counter(v.keep_ratio for v in mine if v.keep_ratio is not None)
         usual = ratios.most_common(1)[0][0] if ratios else None
@@ -97,6 +99,13 @@ def panel_groups(found: Sequence[Variant]) -> list[Panel]:
             base = [v for v in mine if v.strategy == BASELINE and strategy != BASELINE]
             sweep_title = (f"{title}:\n" if title else "") + f"{method_name(strategy)} by keep ratio"
             panels += _cut(sweep_title, base + swept, preset, usual)
+        policies = [v for v in everything if v.memory_policy]
+        if policies:  # each strategy's policies beside its run under today's policy, strategy by strategy
+            strategies = list(dict.fromkeys(v.strategy for v in policies))
+            ladder = [v for s in strategies for v in everything if v.strategy == s and v.keep_ratio in (usual, None)]
+            policy_title = (f"{title}:\n" if title else "") + "memory policies"
+            for panel in _cut(policy_title, ladder, preset, usual):
+                panels.append(Panel(panel.title, panel.variants, preset, usual, by_policy=True))
     return panels
 
 
@@ -123,6 +132,9 @@ def ratio_style(variant: Variant, panel: Panel) -> tuple[str | tuple, str]:
     """(line style, marker): solid and round unless the panel holds several ratios of the strategy; then
     the preset's usual ratio keeps solid and round, so one run looks the same in its preset's panel and
     in the ratio panel, and the others take the next styles in ratio order."""
+    if panel.by_policy:  # today's policy solid and round, then the strategy's policies in the panel's order
+        mine = [v for v in panel.variants if v.strategy == variant.strategy]
+        return RATIO_STYLES[mine.index(variant) % len(RATIO_STYLES)] if variant in mine else RATIO_STYLES[0]
     same = sorted(v.keep_ratio for v in panel.variants if v.strategy == variant.strategy and v.keep_ratio is not None)
     if variant.keep_ratio is None:  # an absolute target: the style after the strategy's ratios, if it has any
         return RATIO_STYLES[len(same) % len(RATIO_STYLES)]
@@ -137,9 +149,17 @@ def ratio_style(variant: Variant, panel: Panel) -> tuple[str | tuple, str]:
 def series_label(variant: Variant, panel: Panel | None = None) -> str:
     """A legend entry: the method's name, and its keep ratio where the panel shows several."""
     label = method_name(variant.strategy)
+    if panel is not None and panel.by_policy:
+        return label + (f" + {short_policy(variant.memory_policy)}" if variant.memory_policy else ", today's policy")
     if panel is not None and sum(v.strategy == variant.strategy for v in panel.variants) > 1:
         label += ", absolute target" if variant.keep_ratio is None else f", keep {variant.keep_ratio:g}"
     return label
+
+
+def short_policy(policy: str) -> str:
+    """A memory policy (``bench.report.settings.policy_label``) short enough for a legend: the sections'
+    names abbreviated (``kf.``, ``res.``; the cap and budget keys need no prefix)."""
+    return policy.replace("keyframes.", "kf.").replace("densify.", "").replace("residency.", "res.")
 
 
 def new_figure(width_in: float, height_in: float) -> Figure:

@@ -179,3 +179,25 @@ def test_literature_criteria_get_a_panel_of_their_own() -> None:
     assert {v.strategy for v in panels[1].variants} == {"none", *LITERATURE}
     assert all(len(p.variants) <= MAX_SERIES for p in panels)
     assert len(panel_groups([Variant(s, 0.4, s, "default") for s in ("none", *LITERATURE)])) == 1
+
+
+def test_memory_policies_get_a_panel_of_their_own_with_todays_runs_beside_them():
+    """Runs under another memory policy never join today's panel; their panel holds each strategy's run under
+    today's policy first (solid, round), then its policies in the next styles, each named in the legend."""
+    from bench.report.style import RATIO_STYLES, panel_groups, ratio_style, series_label
+
+    found = [Variant("none", None, "none", "default"), Variant("pocket", 0.4, "pocket", "default")]
+    found += [
+        Variant("none", None, "none+disk", "default", "keyframes.residency=disk"),
+        Variant("pocket", 0.4, "pocket+cap", "default", "densify.cap=30000"),
+        Variant("pocket", 0.4, "pocket+cap+disk", "default", "keyframes.residency=disk, densify.cap=30000"),
+    ]
+    panels = panel_groups(found)
+    assert [p.by_policy for p in panels] == [False, True]
+    assert all(not v.memory_policy for v in panels[0].variants)
+    policy = panels[1]
+    assert [v.label for v in policy.variants] == ["none", "none+disk", "pocket", "pocket+cap", "pocket+cap+disk"]
+    styles = [ratio_style(v, policy) for v in policy.variants]
+    assert styles == [RATIO_STYLES[0], RATIO_STYLES[1], RATIO_STYLES[0], RATIO_STYLES[1], RATIO_STYLES[2]]
+    assert series_label(policy.variants[4], policy).endswith("+ kf.residency=disk, cap=30000")
+    assert series_label(policy.variants[0], policy).endswith("today's policy")
