@@ -104,7 +104,7 @@ def panel_groups(found: Sequence[Variant]) -> list[Panel]:
             strategies = list(dict.fromkeys(v.strategy for v in policies))
             ladder = [v for s in strategies for v in everything if v.strategy == s and v.keep_ratio in (usual, None)]
             policy_title = (f"{title}:\n" if title else "") + "memory policies"
-            for panel in _cut(policy_title, ladder, preset, usual):
+            for panel in _cut(policy_title, ladder, preset, usual, size=2 * len(RATIO_STYLES)):
                 panels.append(Panel(panel.title, panel.variants, preset, usual, by_policy=True))
     return panels
 
@@ -121,8 +121,8 @@ def _families(title: str, variants: list[Variant], preset: str, usual: float | N
     return _cut(f"{head}paper's methods", paper, preset, usual) + _cut(f"{head}literature", base + lit, preset, usual)
 
 
-def _cut(title: str, variants: list[Variant], preset: str, usual: float | None) -> list[Panel]:
-    chunks = [variants[i : i + MAX_SERIES] for i in range(0, len(variants), MAX_SERIES)]
+def _cut(title: str, variants: list[Variant], preset: str, usual: float | None, size: int = MAX_SERIES) -> list[Panel]:
+    chunks = [variants[i : i + size] for i in range(0, len(variants), size)]
     if len(chunks) == 1:
         return [Panel(title, tuple(chunks[0]), preset, usual)]
     return [Panel(f"{title} ({i + 1}/{len(chunks)})", tuple(c), preset, usual) for i, c in enumerate(chunks)]

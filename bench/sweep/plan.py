@@ -33,12 +33,17 @@ _DIGEST_CHARS = 12
 
 
 def short_name(name: str) -> str:
-    """``name`` when it fits in ``NAME_MAX_BYTES``, else its first bytes, ``~`` and a hash of the whole name."""
-    raw = name.encode()
-    if len(raw) <= NAME_MAX_BYTES:
+    """``name`` when each of its path components fits in ``NAME_MAX_BYTES`` (a value's ``/`` nests the dir, as
+    Hydra writes it), else each component too long cut, ending in ``~`` and a hash of the whole name."""
+    parts = name.split("/")
+    if all(len(p.encode()) <= NAME_MAX_BYTES for p in parts):
         return name
-    head = raw[: NAME_MAX_BYTES - _DIGEST_CHARS - 1].decode(errors="ignore")
-    return f"{head}~{hashlib.sha1(raw).hexdigest()[:_DIGEST_CHARS]}"
+    digest = hashlib.sha1(name.encode()).hexdigest()[:_DIGEST_CHARS]
+    cut = NAME_MAX_BYTES - _DIGEST_CHARS - 1
+    return "/".join(
+        p if len(p.encode()) <= NAME_MAX_BYTES else f"{p.encode()[:cut].decode(errors='ignore')}~{digest}"
+        for p in parts
+    )
 
 
 def planned(config: DictConfig, arguments: Sequence[str]) -> list[list[str]]:
