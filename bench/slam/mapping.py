@@ -104,10 +104,8 @@ class Mapping(SystemState):
         """[N] the strategy's score of the map at the new keyframe's pose (every Gaussian a candidate, none
         new), or opacity under ``unscored=opacity``; None when neither ranks."""
         out = self.render(w2c, stats=True)
-        st = self.map.state
         none = torch.zeros(len(self.map), dtype=torch.bool, device=self.device)
-        grad_mean = st["_track_grad_sum"] / st["_track_grad_n"].clamp_min(1)
-        score = self.strategy.cap_score(self._prune_context(kf_idx, out, none, ~none, grad_mean))
+        score = self.strategy.cap_score(self._prune_context(kf_idx, out, none, ~none))
         if score is None and self.cfg.densify.unscored == "opacity":
             score = self.map.opacities.detach()
         return score

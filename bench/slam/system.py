@@ -354,17 +354,15 @@ class System(Tracking, Mapping, PruneDiagnostics):
         diagnostics of this prune go to ``result.diag`` (``depth`` [H, W]: the frame's observed depth)."""
         with torch.no_grad():
             out = self.render(w2c, stats=True)
-        st = self.map.state
-        grad_mean = st["_track_grad_sum"] / st["_track_grad_n"].clamp_min(1)
         is_new = self.map.birth_kf == kf_idx
         candidates = (out.tile_id >= 0) & ~is_new
-        ctx = self._prune_context(kf_idx, out, is_new, candidates, grad_mean)
+        ctx = self._prune_context(kf_idx, out, is_new, candidates)
         keep = self.strategy.after_mapping(ctx)
         if result is not None and ctx.views_used:
             result.diag["n_score_views"] = len(ctx.views_used)
             result.diag["score_views"] = index_ranges(ctx.views_used)
-        st["_track_grad_sum"].zero_()
-        st["_track_grad_n"].zero_()
+        self.map.state["_track_grad_sum"].zero_()
+        self.map.state["_track_grad_n"].zero_()
         n_candidates = int(candidates.sum())
         if keep is not None:
             keep = keep.to(torch.bool) | is_new  # new Gaussians are exempt whatever the strategy says
@@ -383,11 +381,12 @@ class System(Tracking, Mapping, PruneDiagnostics):
         out: RasterOutput,
         is_new: torch.Tensor,
         candidates: torch.Tensor,
-        grad_mean: torch.Tensor,
     ) -> PruneContext:
-        """What a strategy's prune (``after_mapping``) and its score (``score``, at the cap) read: ``out`` the
-        stats=True render of the map, ``is_new``, ``candidates`` and ``grad_mean`` [N] each."""
+        """What a strategy's prune (``after_mapping``) and its score at the cap (``cap_score``) read: ``out`` the
+        stats=True render of the map, ``is_new`` and ``candidates`` [N] each; the tracking gradient's mean per
+        Gaussian from the map's state."""
         st = self.map.state
+        grad_mean = st["_track_grad_sum"] / st["_track_grad_n"].clamp_min(1)
         return PruneContext(
             kf_idx,
             self.map,
@@ -424,10 +423,9 @@ class System(Tracking, Mapping, PruneDiagnostics):
         return self.keyframes.memory_bytes()
 
     def disk_bytes(self) -> dict[str, int]:
-        """Exact bytes of the files the run holds on disk now, by part: the Gaussian state (map residency,
-        when a residency policy is attached as ``_residency``) and the keyframe store."""
-        residency = getattr(self, "_residency", None)  # map residency, where a policy attached one
-        state = residency.disk_bytes() if residency is not None else 0
+        """Exact bytes of the files the run holds on disk now, by part: the Gaussian state (map residency)
+        and the keyframe store."""
+        state = self._residency.disk_bytes() if self._residency is not None else 0
         return {"state": int(state), "keyframes": self.keyframes.disk_bytes()}
 
 

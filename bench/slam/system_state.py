@@ -85,5 +85,4 @@ class SystemState:
             out: RasterOutput,
             is_new: torch.Tensor,
             candidates: torch.Tensor,
-            grad_mean: torch.Tensor,
         ) -> PruneContext: ...
