@@ -1,4 +1,4 @@
-"""What the six literature criteria share (issue 42; /work/compare/criteria_spec.md sections 0 and 7).
+"""What the six literature criteria share (issue 42; the conventions and known answers: docs/criteria.md).
 
 Each criterion scores every Gaussian, then keeps by one of two rules:
 - ``equal_removal`` (the benchmark's default): the top ``ctx.n_target`` candidates by score, ties
@@ -10,7 +10,7 @@ The SLAM options every render-based criterion takes: ``score_views`` (which view
 views" of the authors' code becomes: the keyframes still held by default) and ``protect_new_kf``
 (exempt the Gaussians added within the last k keyframes; 0, the default, is the authors' behaviour).
 The authors recompute their statistics from scratch at each prune; so does every criterion here
-(the spec's ``stat_mode="running"`` is not offered).
+(statistics accumulated as each keyframe is mapped would be cheaper but stale, so they are not offered).
 """
 
 from __future__ import annotations

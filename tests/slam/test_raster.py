@@ -174,7 +174,7 @@ def _one_pixel(opac, colors, bg=None, backend="torch", extra=("weight_sum", "top
 
 @pytest.mark.parametrize("backend", ["torch", "fused"])
 def test_criteria_statistics_known_answer(backend):
-    """criteria_spec.md section 7, pixel p2: (A, alpha 0.6), (C, alpha 0.5) front to back, colours 1 and 0.5
+    """docs/criteria.md, Example E, pixel p2: (A, alpha 0.6), (C, alpha 0.5) front to back, colours 1 and 0.5
     on one channel, background 0: w = (0.6, 0.2), o T = (0.6, 0.2), A tops the pixel by alpha T and by
     alpha T_after (0.24 vs 0.1), (o dI/dalpha)^2 = (0.2025, 0.01); with grey colours on 3 channels x 9."""
     opac = torch.tensor([0.6, 0.5])

@@ -1,7 +1,7 @@
-"""The six literature criteria (issue 42): known answers on the spec's toy scene, keep masks that follow
+"""The six literature criteria (issue 42): known answers on a toy scene scored by hand, keep masks that follow
 the score, and a CLI run of each.
 
-The toy (``/work/compare/criteria_spec.md`` section 7, Example E: Gaussians A, B, C; two views of two
+The toy (docs/criteria.md, "The known answers", Example E: Gaussians A, B, C; two views of two
 pixels each) cannot be rendered exactly by the real rasterizer (it needs a Gaussian at falloff 0.5 on
 one pixel and 1 on the next), so the strategies get hand-made per-view RasterOutputs whose statistics
 are the table's, summed by hand below. The rasterizer's side of those statistics is checked on the
@@ -170,7 +170,6 @@ def test_minisplatting_known_answer():
     torch.testing.assert_close(raw, torch.tensor([1.5, 0.9, 0.705]))
     assert kept("minisplatting", views=zeroed, keep_ratio=2 / 3) == [A, B]
     # CDF: vals = (1e-6, 0.900001, 1.500001), cum = (4e-7, 0.375, 1): s = 1, keep I > 0.900001, i.e. A alone
-    # (the spec's "cdf gives {A, B}" for this variant does not follow from its own rule)
     assert kept("minisplatting", {"rule": "authors"}, views=zeroed) == [A]
 
 
