@@ -15,6 +15,7 @@ same way) and prints:
     python profiling/fit_diagnosis.py                                   # KITTI 06 shared frames, 1/2, 20 frames
     python profiling/fit_diagnosis.py --frames 51 --overrides "slam=faithful"
     python profiling/fit_diagnosis.py --overrides "seq=04" --curve 100,300,1000
+    python profiling/fit_diagnosis.py --gt-poses      # mapped at the dataset's poses: what tracking error costs
 
 Defaults: ``dataset=kitti dataset.root=<shared>/data/kitti seq=06`` (1/2 resolution), ``threads=2``.
 """
@@ -56,17 +57,63 @@ def affine_gain_db(pred: torch.Tensor, target: torch.Tensor, sel: torch.Tensor) 
     return 10.0 * math.log10(before / after) if after > 0 else math.inf
 
 
+def realigned_psnr(system, w2c: torch.Tensor, rgb: torch.Tensor, has: torch.Tensor, iters: int) -> float:
+    """PSNR over ``has`` of the final map at ``w2c`` after re-aligning the pose alone to it (Adam on a twist,
+    L1 colour over ``has``, the map frozen): what of a keyframe's drop is misalignment between views."""
+    from bench.slam.raster import rasterize
+    from bench.slam.se3 import se3_exp
+
+    g = system.map
+    params = [t.detach() for t in (g.means, g.log_scales, g.quats, g.opacities, g.colors)]
+    xi = torch.zeros(6, requires_grad=True)
+    opt = torch.optim.Adam([xi], lr=1e-3)  # about a millimetre and 0.06 degrees a step
+    sel = has.float()[..., None]
+
+    def render(pose: torch.Tensor) -> torch.Tensor:
+        out = rasterize(
+            *params,
+            pose,
+            system.K,
+            system.W,
+            system.H,
+            depth_far_m=system.cfg.depth_far_m,
+            backend=system.cfg.raster_backend,
+        )
+        return out.color
+
+    for _ in range(iters):
+        loss = ((render(se3_exp(xi) @ w2c) - rgb).abs() * sel).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    with torch.no_grad():
+        sq = (render(se3_exp(xi) @ w2c).clamp(0, 1) - rgb).pow(2).mean(-1)
+    return psnr(sq, has)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--overrides", default="", help="Hydra overrides after the defaults")
     ap.add_argument("--frames", type=int, default=20, help="frames to drive (max_frames)")
     ap.add_argument("--curve", default="50,100,200,500", help="mapping iterations at which keyframe 0 is scored")
+    ap.add_argument(
+        "--gt-poses",
+        action="store_true",
+        help="map at the dataset's ground-truth poses instead of tracking: what pose error costs the fit",
+    )
+    ap.add_argument(
+        "--realign",
+        type=int,
+        default=0,
+        help="Adam steps re-aligning each keyframe's pose to the final map before it is scored again (0: off)",
+    )
     args = ap.parse_args()
 
     from bench.cli.entry import compose
     from bench.cli.validate import validate
     from bench.run.determinism import repeatable
     from bench.run.setup import open_seq
+    from bench.slam.raster import rasterize
     from bench.slam.system import System
 
     overrides = [*shlex.split(DEFAULT), *shlex.split(args.overrides)]
@@ -78,7 +125,7 @@ def main() -> None:
     curve_at = sorted(int(c) for c in args.curve.split(",") if c.strip())
     print(
         f"# fit diagnosis: {seq.name} {seq.width}x{seq.height}, {n} frames, preset {cfg.slam.name}, "
-        f"overrides: {' '.join(overrides)}"
+        f"{'ground-truth poses, ' if args.gt_poses else ''}overrides: {' '.join(overrides)}"
     )
 
     # convergence curve: keyframe 0 alone, mapped for the largest count, scored along the way
@@ -111,6 +158,17 @@ def main() -> None:
     # the run itself
     with repeatable(cfg.seed, cfg.threads, cfg.determinism, device):
         system = System(cfg.slam, seq.K, seq.height, seq.width, built.strategy, cfg.prune, device)
+        if args.gt_poses:
+            c2w0 = seq[0].gt_c2w
+            if c2w0 is None:
+                raise SystemExit(f"--gt-poses: expected ground-truth poses in {seq.name}, found none")
+
+            def gt_track(index: int, rgb: torch.Tensor, depth: torch.Tensor) -> tuple[torch.Tensor, float]:
+                c2w = seq[index].gt_c2w
+                assert c2w is not None and c2w0 is not None
+                return (torch.linalg.inv(c2w) @ c2w0).float().to(device), 0.0  # [4, 4] w2c, world = frame 0
+
+            system._track = gt_track  # type: ignore[method-assign]
         kf_rows = []
         t0 = time.perf_counter()
         for i in range(n):
@@ -133,6 +191,9 @@ def main() -> None:
         wall = time.perf_counter() - t0
         system.refine(cfg.slam.refine_iters)  # as a run does before it evaluates (0 = none)
         stats = {"kf": [], "between": []}
+        final_kf: dict[int, tuple[float, float]] = {}  # keyframe frame -> final map, its own Gaussians' share
+        kf_of_frame = {r[1]: r[0] for r in kf_rows}
+        realigned: dict[int, float] = {}  # keyframe frame -> final map at the re-aligned pose (--realign)
         with torch.no_grad():
             kf_frames = {kf.index for kf in system.keyframes}
             for i, w2c in enumerate(system.poses):
@@ -142,6 +203,29 @@ def main() -> None:
                 sq = (pred - rgb).pow(2).mean(-1)
                 has = depth > 0
                 frac = float(has.float().mean())
+                if i in kf_of_frame:
+                    # the final map without the Gaussians born after this keyframe: the parameters they left
+                    # alone or moved, apart from what later seeds paint over this view
+                    g = system.map
+                    older = (g.birth_kf <= kf_of_frame[i]).to(g.opacities.dtype)
+                    out = rasterize(
+                        g.means,
+                        g.log_scales,
+                        g.quats,
+                        g.opacities * older,
+                        g.colors,
+                        w2c,
+                        system.K,
+                        system.W,
+                        system.H,
+                        depth_far_m=cfg.slam.depth_far_m,
+                        backend=cfg.slam.raster_backend,
+                    )
+                    sq_old = (out.color.clamp(0, 1) - rgb).pow(2).mean(-1)
+                    final_kf[i] = (psnr(sq, has), psnr(sq_old, has))
+                    if args.realign:
+                        with torch.enable_grad():
+                            realigned[i] = realigned_psnr(system, w2c, rgb, has, args.realign)
                 row = (
                     psnr(sq),
                     psnr(sq, has),
@@ -153,12 +237,18 @@ def main() -> None:
 
     print(f"\nrun: {n} frames in {wall:.1f} s (SLAM loop, fit diagnostics included), {len(system.map)} Gaussians")
     print("\n## each keyframe right after its mapping (PSNR dB)\n")
-    print("| kf | frame | whole image | with depth | without depth | depth-masked (SplaTAM) | Gaussians |")
-    print("|---|---|---|---|---|---|---|")
+    print(
+        "| kf | frame | whole image | with depth | without depth | depth-masked (SplaTAM) | Gaussians "
+        "| final map, with depth | final map, Gaussians born by this kf, with depth "
+        "| final map, pose re-aligned, with depth |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for r in kf_rows:
+        fin, old = final_kf.get(r[1], (math.nan, math.nan))
         print(
             f"| {r[0]} | {r[1]} | {r[2]:.2f} | {r[3]:.2f} | "
-            f"{'-' if r[4] is None else f'{r[4]:.2f}'} | {r[5]:.2f} | {r[6]} |"
+            f"{'-' if r[4] is None else f'{r[4]:.2f}'} | {r[5]:.2f} | {r[6]} | {fin:.2f} | {old:.2f} "
+            f"| {realigned.get(r[1], math.nan):.2f} |"
         )
     print("\n## keyframe 0 against mapping iterations (alone, before any other frame)\n")
     print("| iterations | whole image dB | with depth dB | s |")
@@ -205,6 +295,19 @@ def main() -> None:
         f"| later mapping (keyframes revisited) | {mean(stats['kf'], 1) - own_dep:+.2f} | "
         "with depth, keyframes in the final map minus right after their own mapping |"
     )
+    fin_rows = [v for v in final_kf.values() if all(math.isfinite(x) for x in v)]
+    if fin_rows:
+        later_seeds = sum(f - o for f, o in fin_rows) / len(fin_rows)
+        print(
+            f"| ... of which later seeds | {later_seeds:+.2f} | with depth, keyframes in the final map minus the "
+            "same without the Gaussians born after them |"
+        )
+    if realigned:
+        gain = sum(realigned[f] - final_kf[f][0] for f in realigned) / len(realigned)
+        print(
+            f"| ... recovered by re-aligning the pose | {gain:+.2f} | with depth, keyframes in the final map at a pose "
+            f"re-aligned to it ({args.realign} steps) minus at their own |"
+        )
     print(
         f"| iterations (keyframe 0 to {curve_at[-1]}) | {curve_gain:+.2f} | with depth, at {curve_at[-1]} "
         f"iterations minus at the preset's {cfg.slam.mapping_iters} |"
