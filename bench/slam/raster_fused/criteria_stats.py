@@ -1,10 +1,16 @@
 """The pruning criteria's per-Gaussian render statistics (``rasterize(..., extra=...)``), fused backend.
 
-One compiled pass per pixel over its tile's depth-sorted list, with the forward's rules (alpha =
+One compiled pass per tile over its depth-sorted list, with the forward's rules (alpha =
 min(0.99, o exp(power)), pairs under 1/255 skipped, the pixel done where T would fall under 1e-4 and
 that Gaussian not counted). It runs only when a strategy reads one of these statistics, apart from
-the vectorised compositing (``compositing._forward``), which it leaves as it is: a scalar loop per
-pixel is slower but these statistics are taken once per prune, not per mapping iteration.
+the vectorised compositing (``compositing._forward``), which it leaves as it is.
+
+Each Gaussian of the list, front to back, updates the pixels of its 1/255 box (the half-extents
+``compositing._pack`` computes), whose transmittance, best contributor and colour sum the tile keeps
+per pixel, as the forward does. A loop per pixel over the tile's whole list, the first version, cost
+a criterion that scores every keyframe held most of a long drive's time, mispredicting a branch for
+each pair that misses the pixel. Per pair and per pixel the additions come in the same order as
+there (pixels row by row, Gaussians front to back), so the sums are the same bit for bit.
 
 Per pair it writes (then ``_reduce_sum`` sums over pairs in list order, so the result does not
 depend on the threads): sum of alpha T and of o T over the tile's pixels (T before the Gaussian),
@@ -23,7 +29,7 @@ import torch
 from numba import njit, prange
 
 from bench.slam.raster_fused import threads as _threading_layer  # noqa: F401 - set before a parallel kernel runs
-from bench.slam.raster_fused.compositing import _exp, _reduce_sum, _tile_pixels
+from bench.slam.raster_fused.compositing import _KERNEL, LN255, _box, _exp, _reduce_sum, _tile_pixels
 from bench.slam.raster_fused.constants import _F, ALPHA_MAX, ALPHA_MIN, T_MIN
 
 # per-pair columns of ``pair``: weight_sum, opacity_t_sum, top1_count, top1_after_count, alpha_grad_sq
@@ -40,56 +46,93 @@ def _alpha(px, py, m2, conic, opac, g):  # pragma: no cover - compiled
     return raw, min(raw, ALPHA_MAX)
 
 
+@njit(parallel=True, **_KERNEL)
+def _half_extents(conic, opac, ext):  # pragma: no cover - compiled
+    """ext [V, 2]: the half-extents of each Gaussian's 1/255 box, computed as ``compositing._pack`` does
+    (-1: an empty box, for a Gaussian that reaches 1/255 nowhere)."""
+    for g in prange(conic.shape[0]):
+        a, b, c = conic[g, 0], conic[g, 1], conic[g, 2]
+        o = opac[g]
+        det = a * c - b * b
+        ex = ey = _F(-1.0)
+        if o >= ALPHA_MIN and det > _F(0.0):
+            r2 = _F(2.0) * (LN255 + np.log(o))  # d^T S^-1 d <= r2  <=>  o exp(power) >= 1/255
+            ex = np.sqrt(r2 * c / det) + _F(1e-3)
+            ey = np.sqrt(r2 * a / det) + _F(1e-3)
+        ext[g, 0], ext[g, 1] = ex, ey
+
+
 @njit(parallel=True, cache=True, error_model="numpy")
-def _extra(gid, tile_start, m2, conic, opac, csum, width, height, tiles_x, bg_sum, grad, pair):  # pragma: no cover
+def _extra(gid, tile_start, m2, conic, opac, ext, csum, width, height, tiles_x, bg_sum, grad, pair):  # pragma: no cover
     n_tiles = tile_start.shape[0] - 1
     for t in prange(n_tiles):
         x0, x1, y0, y1 = _tile_pixels(t, tiles_x, width, height)
         s, e = tile_start[t], tile_start[t + 1]
-        ks = np.empty(e - s, np.int64)  # a pixel's contributors (pair index), their alpha and T in front
-        al = np.empty(e - s, np.float32)
-        tb = np.empty(e - s, np.float32)
-        for y in range(y0, y1):
-            for x in range(x0, x1):
-                px, py = _F(x), _F(y)
-                T = _F(1.0)
-                col = _F(0.0)
-                n = 0
-                best_w, best_k = _F(0.0), -1
-                best_a, best_ka = _F(0.0), -1
-                for k in range(s, e):
-                    g = gid[k]
-                    raw, alpha = _alpha(px, py, m2, conic, opac, g)
+        tw = x1 - x0
+        n_px = tw * (y1 - y0)
+        trans = np.ones(n_px, np.float32)  # per pixel: T in front of the next contributor
+        done = np.zeros(n_px, np.bool_)  # T would fall under T_MIN: nothing behind counts
+        best_w = np.zeros(n_px, np.float32)
+        best_k = np.full(n_px, -1, np.int64)
+        best_a = np.zeros(n_px, np.float32)
+        best_ka = np.full(n_px, -1, np.int64)
+        col = np.zeros(n_px, np.float32)  # the composited colour sum, without the background
+        for k in range(s, e):
+            g = gid[k]
+            bx0, bx1, by0, by1 = _box(m2[g, 0], m2[g, 1], ext[g, 0], ext[g, 1], x0, x1, y0, y1)
+            for y in range(by0, by1):
+                for x in range(bx0, bx1):
+                    p = (y - y0) * tw + (x - x0)
+                    if done[p]:
+                        continue
+                    raw, alpha = _alpha(_F(x), _F(y), m2, conic, opac, g)
                     if raw < ALPHA_MIN:
                         continue
+                    T = trans[p]
                     test_t = T * (_F(1.0) - alpha)
                     if test_t < T_MIN:
-                        break
+                        done[p] = True
+                        continue
                     w = alpha * T
                     pair[k, P_W] += w
                     pair[k, P_OT] += opac[g] * T
-                    if w > best_w:
-                        best_w, best_k = w, k
+                    if w > best_w[p]:
+                        best_w[p], best_k[p] = w, k
                     wa = alpha * test_t
-                    if wa > best_a:
-                        best_a, best_ka = wa, k
-                    col += w * csum[g]
-                    ks[n], al[n], tb[n] = k, alpha, T
-                    n += 1
-                    T = test_t
-                if best_k >= 0:
-                    pair[best_k, P_TOP] += _F(1.0)
-                if best_ka >= 0:
-                    pair[best_ka, P_TOPA] += _F(1.0)
-                if grad:
-                    front = _F(0.0)
-                    for m in range(n):
-                        k = ks[m]
-                        g = gid[k]
-                        front += al[m] * tb[m] * csum[g]
-                        inv = _F(1.0) / (_F(1.0) - al[m])
-                        v = opac[g] * (tb[m] * csum[g] - (col - front) * inv - T * bg_sum * inv)
+                    if wa > best_a[p]:
+                        best_a[p], best_ka[p] = wa, k
+                    col[p] += w * csum[g]
+                    trans[p] = test_t
+        for p in range(n_px):
+            if best_k[p] >= 0:
+                pair[best_k[p], P_TOP] += _F(1.0)
+            if best_ka[p] >= 0:
+                pair[best_ka[p], P_TOPA] += _F(1.0)
+        if grad:  # a second pass front to back, now that each pixel's colour and final T are known
+            t2 = np.ones(n_px, np.float32)
+            front = np.zeros(n_px, np.float32)  # the colour sum from the Gaussians up to this one
+            done[:] = False
+            for k in range(s, e):
+                g = gid[k]
+                bx0, bx1, by0, by1 = _box(m2[g, 0], m2[g, 1], ext[g, 0], ext[g, 1], x0, x1, y0, y1)
+                for y in range(by0, by1):
+                    for x in range(bx0, bx1):
+                        p = (y - y0) * tw + (x - x0)
+                        if done[p]:
+                            continue
+                        raw, alpha = _alpha(_F(x), _F(y), m2, conic, opac, g)
+                        if raw < ALPHA_MIN:
+                            continue
+                        T = t2[p]
+                        test_t = T * (_F(1.0) - alpha)
+                        if test_t < T_MIN:
+                            done[p] = True
+                            continue
+                        front[p] += alpha * T * csum[g]
+                        inv = _F(1.0) / (_F(1.0) - alpha)
+                        v = opac[g] * (T * csum[g] - (col[p] - front[p]) * inv - trans[p] * bg_sum * inv)
                         pair[k, P_G2] += v * v
+                        t2[p] = test_t
 
 
 def extra_stats(
@@ -111,10 +154,11 @@ def extra_stats(
     co = conic.detach().float().contiguous().numpy()
     op = opac.detach().float().contiguous().numpy()
     cs = colors.detach().float().sum(-1).contiguous().numpy()  # [V] channel sum, the colours as rendered
+    ext = np.empty((m2.shape[0], 2), np.float32)  # [V, 2]
+    _half_extents(co, op, ext)
     pair = torch.zeros(gid.shape[0], N_PAIR, dtype=torch.float32)
     out = torch.zeros(m2.shape[0], N_PAIR, dtype=torch.float32)
-    _extra(
-        gid.numpy(), tile_start.numpy(), m2, co, op, cs, width, height, tiles_x, np.float32(bg_sum), grad, pair.numpy()
-    )
+    args = (tiles_x, np.float32(bg_sum), grad, pair.numpy())
+    _extra(gid.numpy(), tile_start.numpy(), m2, co, op, ext, cs, width, height, *args)
     _reduce_sum(gid.numpy(), pair.numpy(), out.numpy())
     return out
