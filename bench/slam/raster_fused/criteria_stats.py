@@ -77,40 +77,12 @@ def _extra(gid, tile_start, m2, conic, opac, ext, csum, width, height, tiles_x, 
         best_a = np.zeros(n_px, np.float32)
         best_ka = np.full(n_px, -1, np.int64)
         col = np.zeros(n_px, np.float32)  # the composited colour sum, without the background
-        for k in range(s, e):
-            g = gid[k]
-            bx0, bx1, by0, by1 = _box(m2[g, 0], m2[g, 1], ext[g, 0], ext[g, 1], x0, x1, y0, y1)
-            for y in range(by0, by1):
-                for x in range(bx0, bx1):
-                    p = (y - y0) * tw + (x - x0)
-                    if done[p]:
-                        continue
-                    raw, alpha = _alpha(_F(x), _F(y), m2, conic, opac, g)
-                    if raw < ALPHA_MIN:
-                        continue
-                    T = trans[p]
-                    test_t = T * (_F(1.0) - alpha)
-                    if test_t < T_MIN:
-                        done[p] = True
-                        continue
-                    w = alpha * T
-                    pair[k, P_W] += w
-                    pair[k, P_OT] += opac[g] * T
-                    if w > best_w[p]:
-                        best_w[p], best_k[p] = w, k
-                    wa = alpha * test_t
-                    if wa > best_a[p]:
-                        best_a[p], best_ka[p] = wa, k
-                    col[p] += w * csum[g]
-                    trans[p] = test_t
-        for p in range(n_px):
-            if best_k[p] >= 0:
-                pair[best_k[p], P_TOP] += _F(1.0)
-            if best_ka[p] >= 0:
-                pair[best_ka[p], P_TOPA] += _F(1.0)
-        if grad:  # a second pass front to back, now that each pixel's colour and final T are known
-            t2 = np.ones(n_px, np.float32)
-            front = np.zeros(n_px, np.float32)  # the colour sum from the Gaussians up to this one
+        t2 = np.ones(n_px, np.float32)  # stage 1: T again, front to back
+        front = np.zeros(n_px, np.float32)  # stage 1: the colour sum from the Gaussians up to this one
+        # stage 0: the sums, the best contributors and each pixel's colour and final T; stage 1 (alpha_grad_sq),
+        # the same walk again, now that the colour and final T that dI/dalpha needs are known
+        for stage in range(2 if grad else 1):
+            tr = trans if stage == 0 else t2
             done[:] = False
             for k in range(s, e):
                 g = gid[k]
@@ -123,16 +95,32 @@ def _extra(gid, tile_start, m2, conic, opac, ext, csum, width, height, tiles_x, 
                         raw, alpha = _alpha(_F(x), _F(y), m2, conic, opac, g)
                         if raw < ALPHA_MIN:
                             continue
-                        T = t2[p]
+                        T = tr[p]
                         test_t = T * (_F(1.0) - alpha)
                         if test_t < T_MIN:
                             done[p] = True
                             continue
-                        front[p] += alpha * T * csum[g]
-                        inv = _F(1.0) / (_F(1.0) - alpha)
-                        v = opac[g] * (T * csum[g] - (col[p] - front[p]) * inv - trans[p] * bg_sum * inv)
-                        pair[k, P_G2] += v * v
-                        t2[p] = test_t
+                        tr[p] = test_t
+                        if stage == 0:
+                            w = alpha * T
+                            pair[k, P_W] += w
+                            pair[k, P_OT] += opac[g] * T
+                            if w > best_w[p]:
+                                best_w[p], best_k[p] = w, k
+                            wa = alpha * test_t
+                            if wa > best_a[p]:
+                                best_a[p], best_ka[p] = wa, k
+                            col[p] += w * csum[g]
+                        else:
+                            front[p] += alpha * T * csum[g]
+                            inv = _F(1.0) / (_F(1.0) - alpha)
+                            v = opac[g] * (T * csum[g] - (col[p] - front[p]) * inv - trans[p] * bg_sum * inv)
+                            pair[k, P_G2] += v * v
+        for p in range(n_px):
+            if best_k[p] >= 0:
+                pair[best_k[p], P_TOP] += _F(1.0)
+            if best_ka[p] >= 0:
+                pair[best_ka[p], P_TOPA] += _F(1.0)
 
 
 def extra_stats(
