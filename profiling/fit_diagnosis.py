@@ -57,10 +57,19 @@ def affine_gain_db(pred: torch.Tensor, target: torch.Tensor, sel: torch.Tensor) 
     return 10.0 * math.log10(before / after) if after > 0 else math.inf
 
 
+def map_color(system, w2c: torch.Tensor, params: list[torch.Tensor]) -> torch.Tensor:
+    """[H, W, 3] colour of ``params`` (means, log-scales, quats, opacities, colours: the map's, altered) at
+    ``w2c``, rendered with the system's camera and settings, as ``System.render`` renders the map."""
+    from bench.slam.raster import rasterize
+
+    cfg = system.cfg
+    out = rasterize(*params, w2c, system.K, system.W, system.H, depth_far_m=cfg.depth_far_m, backend=cfg.raster_backend)
+    return out.color
+
+
 def realigned_psnr(system, w2c: torch.Tensor, rgb: torch.Tensor, has: torch.Tensor, iters: int) -> float:
     """PSNR over ``has`` of the final map at ``w2c`` after re-aligning the pose alone to it (Adam on a twist,
     L1 colour over ``has``, the map frozen): what of a keyframe's drop is misalignment between views."""
-    from bench.slam.raster import rasterize
     from bench.slam.se3 import se3_exp
 
     g = system.map
@@ -68,26 +77,13 @@ def realigned_psnr(system, w2c: torch.Tensor, rgb: torch.Tensor, has: torch.Tens
     xi = torch.zeros(6, requires_grad=True)
     opt = torch.optim.Adam([xi], lr=1e-3)  # about a millimetre and 0.06 degrees a step
     sel = has.float()[..., None]
-
-    def render(pose: torch.Tensor) -> torch.Tensor:
-        out = rasterize(
-            *params,
-            pose,
-            system.K,
-            system.W,
-            system.H,
-            depth_far_m=system.cfg.depth_far_m,
-            backend=system.cfg.raster_backend,
-        )
-        return out.color
-
     for _ in range(iters):
-        loss = ((render(se3_exp(xi) @ w2c) - rgb).abs() * sel).mean()
+        loss = ((map_color(system, se3_exp(xi) @ w2c, params) - rgb).abs() * sel).mean()
         opt.zero_grad()
         loss.backward()
         opt.step()
     with torch.no_grad():
-        sq = (render(se3_exp(xi) @ w2c).clamp(0, 1) - rgb).pow(2).mean(-1)
+        sq = (map_color(system, se3_exp(xi) @ w2c, params).clamp(0, 1) - rgb).pow(2).mean(-1)
     return psnr(sq, has)
 
 
@@ -113,7 +109,6 @@ def main() -> None:
     from bench.cli.validate import validate
     from bench.run.determinism import repeatable
     from bench.run.setup import open_seq
-    from bench.slam.raster import rasterize
     from bench.slam.system import System
 
     overrides = [*shlex.split(DEFAULT), *shlex.split(args.overrides)]
@@ -208,20 +203,8 @@ def main() -> None:
                     # alone or moved, apart from what later seeds paint over this view
                     g = system.map
                     older = (g.birth_kf <= kf_of_frame[i]).to(g.opacities.dtype)
-                    out = rasterize(
-                        g.means,
-                        g.log_scales,
-                        g.quats,
-                        g.opacities * older,
-                        g.colors,
-                        w2c,
-                        system.K,
-                        system.W,
-                        system.H,
-                        depth_far_m=cfg.slam.depth_far_m,
-                        backend=cfg.slam.raster_backend,
-                    )
-                    sq_old = (out.color.clamp(0, 1) - rgb).pow(2).mean(-1)
+                    color = map_color(system, w2c, [g.means, g.log_scales, g.quats, g.opacities * older, g.colors])
+                    sq_old = (color.clamp(0, 1) - rgb).pow(2).mean(-1)
                     final_kf[i] = (psnr(sq, has), psnr(sq_old, has))
                     if args.realign:
                         with torch.enable_grad():
