@@ -239,7 +239,8 @@ def milestone_row(cfg: RunConfig, parts: RunSetup, drive: LoopOutcome, out: Path
     system = parts.system
     n_done = len(drive.timestamps_s)
     est_c2w = tracked_c2w(system, n_done)
-    res = evaluate(cfg, out, parts, est_c2w, drive, system.device, write_gt=False)
+    with system.whole_map():  # what map residency holds on disk is scored too, as at the end of a run
+        res = evaluate(cfg, out, parts, est_c2w, drive, system.device, write_gt=False)
     mem = schema.memory_summary(drive.windows, system.device.type)
     row = {
         k: res.get(k)
@@ -257,6 +258,7 @@ def milestone_row(cfg: RunConfig, parts: RunSetup, drive: LoopOutcome, out: Path
     row.update(
         frames=n_done,
         n_gaussians=len(system.map),
+        n_evicted=system.n_evicted(),
         peak_mem_mib=mem[schema.PEAK_FIELD],
         state_mib=round(system.map.state_bytes() / schema.MIB, 4),
     )

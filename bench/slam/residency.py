@@ -13,8 +13,10 @@ moments, state). Unlike VINGS-Mono, which rebuilds its optimiser on the way back
 
 Order, so that a run is repeatable: an anchor's Gaussians are written in map order and come back
 appended after the live map, anchors in ascending order, each in its written order. While on disk a
-Gaussian is in no render: tracking, mapping, pruning and the milestones see the live map only. The
-evaluation at the end of a run brings every Gaussian back first (``System.restore_all``).
+Gaussian is in no render: tracking, mapping and pruning see the live map only. A milestone
+(``eval.at_frames``) scores a copy of the whole map (``whole_map``), the live map untouched, so that it
+scores what the run has made so far, as the end of a run does; the evaluation at the end of a run brings every
+Gaussian back first (``System.restore_all``).
 """
 
 from __future__ import annotations
@@ -151,6 +153,16 @@ class MapResidency:
         """Every Gaussian on disk back in the map (before the evaluation); the store is left empty."""
         self.far = set()
         return sum(self._bring_back(gmap, a) for a in sorted(self.on_disk))
+
+    def whole_map(self, gmap: GaussianMap) -> GaussianMap:
+        """A copy of ``gmap`` with every Gaussian on disk appended, in the order ``restore_all`` gives
+        (anchors ascending): what the milestones score. Neither ``gmap`` nor the store changes, so a run
+        scored at its milestones goes on exactly as one that is not."""
+        whole = GaussianMap(gmap.device, gmap.lrs, gmap.extra, {k: v.dtype for k, v in gmap.state.items()})
+        whole.extend(gmap.take(torch.ones(len(gmap), dtype=torch.bool, device=gmap.birth_kf.device)))
+        for anchor in sorted(self.on_disk):
+            whole.extend(self._read(anchor))
+        return whole
 
     def _write_out(self, gmap: GaussianMap, anchors: list[int], stays: torch.Tensor | None = None) -> int:
         """Write the Gaussians of ``anchors`` but those ``stays`` [N] bool keeps, one file per anchor

@@ -9,7 +9,7 @@ from __future__ import annotations
 import contextlib
 import random
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, cast
@@ -152,6 +152,20 @@ class System(Tracking, Mapping, PruneDiagnostics):
     def restore_all(self) -> int:
         """Every Gaussian map residency holds on disk back in the map (before the final evaluation)."""
         return 0 if self._residency is None else self._residency.restore_all(self.map)
+
+    @contextlib.contextmanager
+    def whole_map(self) -> Iterator[None]:
+        """Within: ``self.map`` is a copy of the whole map, the Gaussians map residency holds on disk
+        included (a milestone scores it); after, the live map is back as it was."""
+        if self._residency is None or not self._residency.on_disk:
+            yield
+            return
+        live = self.map
+        self.map = self._residency.whole_map(live)
+        try:
+            yield
+        finally:
+            self.map = live
 
     def render(
         self,

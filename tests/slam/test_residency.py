@@ -131,6 +131,24 @@ def test_a_checkpoint_holds_the_gaussians_on_disk_and_rewrites_them(tmp_path: Pa
     assert other.restore_all(h) == 4 and h.birth_kf.tolist() == [1] * 4 + [2] * 4 + [0] * 4
 
 
+def test_the_whole_map_is_the_restored_map_and_leaves_the_live_one_alone(tmp_path: Path) -> None:
+    """What a milestone scores under residency: the live map plus the store, in restore order, as a copy."""
+    g = make_map()
+    res = residency(tmp_path)
+    res.check(g, at(20.0))  # all three anchors are far
+    res.check(g, at(0.0))  # 0 and 1 come back, 2 (8 m away) stays on disk
+    assert res.n_evicted() == 4
+    live = snapshot(g)
+    whole = res.whole_map(g)
+    assert len(whole) == len(g) + 4 and res.n_evicted() == 4  # the store keeps its Gaussians
+    for k, v in snapshot(g).items():
+        assert torch.equal(v, live[k]), k  # the live map did not move
+    res.restore_all(g)
+    for k, p in g.params.items():
+        assert torch.equal(whole.params[k].detach(), p.detach()), k
+    assert torch.equal(whole.birth_kf, g.birth_kf) and torch.equal(whole.state["score"], g.state["score"])
+
+
 def test_a_missing_store_file_is_one_line(tmp_path: Path) -> None:
     g = make_map()
     res = residency(tmp_path)
@@ -173,6 +191,22 @@ def drives(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[System, 
         results = [s.step(seq[i]) for i in order]
         out[policy] = (s, results, seq)
     return out
+
+
+def test_a_milestone_renders_the_whole_map_and_the_run_goes_on_unchanged(drives) -> None:
+    """``System.whole_map``: inside, the map holds the Gaussians on disk too (in restore order: the unit test
+    above); after, the live map is the same object with the same tensors, so a milestone changes nothing."""
+    s, _, _ = drives["distance"]
+    assert s.n_evicted() > 0
+    live, n_live = s.map, len(s.map)
+    means = s.map.means.detach().clone()
+    with torch.no_grad():
+        alone = s.render(torch.eye(4)).color
+        with s.whole_map():
+            assert len(s.map) == n_live + s.n_evicted()
+            whole = s.render(torch.eye(4)).color
+    assert s.map is live and torch.equal(s.map.means.detach(), means)
+    assert not torch.equal(whole, alone)  # the start's Gaussians are on disk: the live map alone lacks them
 
 
 def test_a_drive_away_and_back_evicts_then_restores(drives) -> None:
