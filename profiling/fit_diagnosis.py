@@ -16,6 +16,7 @@ same way) and prints:
     python profiling/fit_diagnosis.py --frames 51 --overrides "slam=faithful"
     python profiling/fit_diagnosis.py --overrides "seq=04" --curve 100,300,1000
     python profiling/fit_diagnosis.py --gt-poses      # mapped at the dataset's poses: what tracking error costs
+    python profiling/fit_diagnosis.py --defaults "dataset=synthetic" --overrides "dataset.depth_noise_rel=0.05"
 
 Defaults: ``dataset=kitti dataset.root=<shared>/data/kitti seq=06`` (1/2 resolution), ``threads=2``.
 """
@@ -89,6 +90,7 @@ def realigned_psnr(system, w2c: torch.Tensor, rgb: torch.Tensor, has: torch.Tens
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--defaults", default=DEFAULT, help=f"Hydra overrides first (default: {DEFAULT})")
     ap.add_argument("--overrides", default="", help="Hydra overrides after the defaults")
     ap.add_argument("--frames", type=int, default=20, help="frames to drive (max_frames)")
     ap.add_argument("--curve", default="50,100,200,500", help="mapping iterations at which keyframe 0 is scored")
@@ -111,7 +113,7 @@ def main() -> None:
     from bench.run.setup import open_seq
     from bench.slam.system import System
 
-    overrides = [*shlex.split(DEFAULT), *shlex.split(args.overrides)]
+    overrides = [*shlex.split(args.defaults), *shlex.split(args.overrides)]
     built = validate(compose(overrides))
     cfg = built.config
     seq = open_seq(cfg)

@@ -13,6 +13,7 @@ from bench.slam.raster import BACKENDS
 from bench.slam.residency import ResidencyConfig
 
 MAPPING_SCHEDULES = ("keyframes", "first")
+MAPPING_DRAWS = ("alternate", "uniform")
 TRACKING_MASKS = ("current", "init")
 TRACKING_INITS = ("velocity", "flow_pnp")
 DENSIFY_ERR_MEDIANS = ("confident", "image")
@@ -110,10 +111,15 @@ class SlamConfig:
     # does (`if time_idx < 1` around its mapping loop; +experiment=released)
     mapping_schedule: str = setting("keyframes", "str", choices=MAPPING_SCHEDULES)
     mapping_fresh_optimizer: bool = True  # new Adam moments per keyframe, as SplaTAM does
-    # keyframes optimised together (current one included); None = all. Half the iterations go to the
-    # current keyframe, the rest to a random other one of the window. A short window lets later
+    # keyframes optimised together (current one included); None = all. A short window lets later
     # close-ups overwrite the views of the early drive (figures in reports/known_limits.md).
     mapping_window: int | None = setting(None, "int", lo=1, nullable=True)
+    # which keyframe of the window each mapping iteration fits: "alternate" = the newest at every even
+    # iteration, a random other one at every odd one (half the iterations go to the newest); "uniform" = a
+    # random one of the window, the newest included, as SplaTAM's mapping loop draws (scripts/splatam.py:
+    # rand_idx = np.random.randint(0, len(selected_keyframes)), the current frame one of them). Why an
+    # option: the newest keyframe's half undoes the fit of the views before it (reports/fidelity/README.md)
+    mapping_draw: str = setting("alternate", "str", choices=MAPPING_DRAWS)
     # iterations over all keyframes once the drive is over (System.refine), timed apart from the
     # SLAM loop and not in fps; 0 = evaluate the map exactly as mapping left it
     refine_iters: int = setting(0, "int", lo=0)

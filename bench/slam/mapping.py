@@ -123,6 +123,8 @@ class Mapping(SystemState):
             window = [kf for kf in window if self._residency.resident(kf.kf)]
 
         def pick(it: int) -> Keyframe:
+            if cfg.mapping_draw == "uniform":
+                return self._rng.choice(window)
             return window[0] if it % 2 == 0 or len(window) == 1 else self._rng.choice(window[1:])
 
         self._optimize(kf_idx, cfg.mapping_iters, pick)

@@ -3,6 +3,8 @@ keyframe only; later keyframes densify and prune, and the map's old Gaussians ar
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 
@@ -72,3 +74,25 @@ def test_released_experiment_uses_it_and_bad_values_are_refused():
     assert cfg.prune.target == "absolute" and cfg.prune.every == "frame"
     with pytest.raises(ConfigError, match="slam.mapping_schedule: expected one of keyframes, first, found 'never'"):
         SlamConfig(mapping_schedule="never")
+
+
+@pytest.mark.parametrize("draw", ["alternate", "uniform"])
+def test_mapping_draw_decides_the_newest_keyframes_share(draw, monkeypatch):
+    """``slam.mapping_draw``: ``alternate`` fits the newest keyframe at every even iteration; ``uniform`` draws
+    each iteration from the whole window, the newest one of them, as SplaTAM's mapping loop does."""
+    seq = open_sequence({"width": 48, "height": 32, "n_frames": 4, "supersample": 1})
+    cfg = SlamConfig(
+        tracking_iters=2, tracking_iters_first=3, mapping_iters=1, kf_every=1, lost_min_silhouette_frac=0.0
+    )
+    system = System(cfg, seq.K, seq.height, seq.width, load_strategy("none", {}), 1.0, torch.device("cpu"))
+    for i in range(4):
+        system.step(seq[i])
+    system.cfg = dataclasses.replace(system.cfg, mapping_draw=draw, mapping_iters=400)
+    drawn: list[int] = []
+    monkeypatch.setattr(system, "_optimize", lambda kf, iters, pick: drawn.extend(pick(it).kf for it in range(iters)))
+    system._map(3)
+    newest = sum(k == 3 for k in drawn) / len(drawn)
+    if draw == "alternate":
+        assert newest == 0.5 and drawn[0::2] == [3] * 200
+    else:
+        assert 0.18 < newest < 0.32 and set(drawn) == {0, 1, 2, 3}  # 1/4 of 400 draws, within 3 std
