@@ -118,7 +118,8 @@ class SlamConfig:
     # iteration, a random other one at every odd one (half the iterations go to the newest); "uniform" = a
     # random one of the window, the newest included, as SplaTAM's mapping loop draws (scripts/splatam.py:
     # rand_idx = np.random.randint(0, len(selected_keyframes)), the current frame one of them). Why an
-    # option: the newest keyframe's half undoes the fit of the views before it (reports/fidelity/README.md)
+    # option: it is a difference from the paper's base system, and its effect on the fit differs between
+    # exact and stereo depth (measured in reports/fidelity/README.md)
     mapping_draw: str = setting("alternate", "str", choices=MAPPING_DRAWS)
     # iterations over all keyframes once the drive is over (System.refine), timed apart from the
     # SLAM loop and not in fps; 0 = evaluate the map exactly as mapping left it
