@@ -159,7 +159,10 @@ class MapResidency:
         (anchors ascending): what the milestones score. Neither ``gmap`` nor the store changes, so a run
         scored at its milestones goes on exactly as one that is not."""
         whole = GaussianMap(gmap.device, gmap.lrs, gmap.extra, {k: v.dtype for k, v in gmap.state.items()})
-        whole.extend(gmap.take(torch.ones(len(gmap), dtype=torch.bool, device=gmap.birth_kf.device)))
+        # the live rows without their Adam moments (the copy has no optimiser state, so extend would drop
+        # them) and uncloned (extend concatenates into new tensors)
+        live = {"params": {k: p.detach() for k, p in gmap.params.items()}, "moments": {}}
+        whole.extend({**live, "birth_kf": gmap.birth_kf, "state": dict(gmap.state)})
         for anchor in sorted(self.on_disk):
             whole.extend(self._read(anchor))
         return whole
