@@ -124,3 +124,32 @@ def test_rendered_table_page(report, tmp_path):
     for word in ("ATE", "PSNR", "LSG-SLAM baseline", "Ours (w/ Tile Budget)", "Avg", "tracking lost"):
         assert word in text, (word, text[:2000])
     assert "\\" not in text  # no unrendered LaTeX on the page
+
+
+
+def test_a_pareto_per_sequence_keeps_each_routes_own_points(make_run, tmp_path):
+    """Routes whose baselines differ: the per-route front holds that route's runs alone, the pooled one the means."""
+    from unittest import mock
+
+    from bench.report.collect import collect
+    from bench.report.figures import pareto
+
+    root = tmp_path / "runs"
+    make_run(root / "0", strategy="none", seq="0", dataset="synthetic", keep_ratio=None, peak_mem_mib=100.0)
+    make_run(root / "1", strategy="pocket", seq="0", dataset="synthetic", peak_mem_mib=80.0, ate_rmse_m=0.2)
+    make_run(root / "2", strategy="none", seq="1", dataset="synthetic", keep_ratio=None, peak_mem_mib=300.0)
+    make_run(root / "3", strategy="pocket", seq="1", dataset="synthetic", peak_mem_mib=200.0, ate_rmse_m=0.2)
+    runs = collect([root]).runs
+    low: list[float] = []  # each figure's memory axis, lower limit
+    real_save = pareto._save
+
+    def keep(fig, path):
+        low.append(fig.axes[0].get_xlim()[0])
+        return real_save(fig, path)
+
+    with mock.patch.object(pareto, "_save", keep):
+        per_route = pareto.plot_pareto(runs, "synthetic", tmp_path, seq="1")
+        pooled = pareto.plot_pareto(runs, "synthetic", tmp_path)
+    assert per_route is not None and per_route.name == "pareto_synthetic_1.png"
+    assert pooled is not None and pooled.name == "pareto_synthetic.png"
+    assert low[0] > 150 > low[1]  # route 1's own points (200, 300) against the means over routes (140, 200)

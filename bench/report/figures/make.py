@@ -59,6 +59,8 @@ def _make_plots(runs: pd.DataFrame, out: Path, warn: Warn) -> list[Path]:
                 written.append(plot_per_keyframe(ds, dataset, seq, out, warn, *MEMORY_VS_DISTANCE, x_col="distance_m"))
                 written.append(plot_milestones(ds, dataset, seq, out, warn))
                 written.append(plot_drift(ds, dataset, seq, out, warn))
+                if ds["seq"].nunique() > 1:  # routes' baselines differ: a front per route, beside the pooled one
+                    written.append(plot_pareto(ds, dataset, out, seq=seq))
             written.append(plot_density(ds, dataset, seq, out, warn))
             written.append(plot_trajectory(ds, dataset, seq, out, warn))
             written += plot_pruned(ds, dataset, seq, out, warn)

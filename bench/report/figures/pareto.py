@@ -32,13 +32,17 @@ def _front(points: list[tuple[float, float]], lower_is_better: bool) -> list[tup
     return front
 
 
-def plot_pareto(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
+def plot_pareto(runs: pd.DataFrame, dataset: str, out: Path, seq: str | None = None) -> Path | None:
     """Accuracy against peak memory per method (dataset averages), with the Pareto front of each
     panel: one column per preset (and keep-ratio sweep), ATE above PSNR, y shared along a row.
 
     A method measured on fewer sequences than the others is drawn hollow and kept off the
     front: its average is over easier or fewer sequences and would not be a fair point.
+    With `seq`, one sequence's runs alone: long drives on different routes have baselines
+    whose peaks differ by a third, and their mean would be nobody's point.
     """
+    if seq is not None:
+        runs = runs[runs["seq"] == seq]
     known = sorted(set(runs["strategy"]))
     n_seqs = runs["seq"].nunique()
     memory: dict[Variant, tuple[float, int]] = {}
@@ -116,5 +120,8 @@ def plot_pareto(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
         handles.append(key("hollow: not measured on every sequence", "black", "none", "o", mfc="white"))
     legend_outside(fig, handles)
     seeds = f"mean of {most_seeds} seeds" if most_seeds >= 2 else "1 seed: no noise estimate"
-    fig_title(fig, f"Accuracy vs peak memory, {dataset_name(dataset)} (mean over sequences, {seeds})")
-    return _save(fig, out / f"pareto_{file_token(dataset)}.png")
+    if seq is None:
+        fig_title(fig, f"Accuracy vs peak memory, {dataset_name(dataset)} (mean over sequences, {seeds})")
+        return _save(fig, out / f"pareto_{file_token(dataset)}.png")
+    fig_title(fig, f"Accuracy vs peak memory, {dataset_name(dataset)} {seq} ({seeds})")
+    return _save(fig, out / f"pareto_{file_token(dataset)}_{file_token(seq)}.png")
