@@ -126,7 +126,6 @@ def test_rendered_table_page(report, tmp_path):
     assert "\\" not in text  # no unrendered LaTeX on the page
 
 
-
 def test_a_pareto_per_sequence_keeps_each_routes_own_points(make_run, tmp_path):
     """Routes whose baselines differ: the per-route front holds that route's runs alone, the pooled one the means."""
     from unittest import mock
