@@ -216,6 +216,9 @@ def test_identical_runs_and_explicit_none_give_identical_numbers(tmp_path):
     stored = json.loads((tmp_path / "a" / "metrics.json").read_text())
     assert stored["determinism"]["deterministic"] is True and stored["determinism"]["threads"] == 2
     assert stored["provenance"]["torch_threads"] == 2
+    # what the floats depend on beyond the code and the seed: the chip and the features numba compiled for
+    prov = stored["provenance"]
+    assert prov["numba_cpu"] and len(prov["numba_cpu_features_sha"]) == 12 and prov["cpu_model"]
     reference = _repeatable_part(tmp_path / "a")
     assert len(reference[1]) >= 2 and "ate_rmse_m" in reference[0]
     assert _repeatable_part(tmp_path / "b") == reference

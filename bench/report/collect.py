@@ -156,7 +156,15 @@ def read_run(run_dir: Path) -> dict[str, Any]:
         if key not in row:  # metrics.keep_ratio repeats run.keep_ratio (bench.schema): the run key stands
             row[key] = value
     provenance = _dict_or_empty(data.get("provenance"))
-    for key in ("git_commit", "git_dirty", "device", "numba_cpu", "torch_cpu_capability"):
+    for key in (
+        "git_commit",
+        "git_dirty",
+        "device",
+        "numba_cpu",
+        "numba_cpu_features_sha",
+        "cpu_model",
+        "torch_cpu_capability",
+    ):
         row[key] = provenance.get(key)
     versions = _dict_or_empty(provenance.get("versions"))
     for name, version in sorted(versions.items()):

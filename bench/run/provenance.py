@@ -47,9 +47,33 @@ def cpu_target() -> dict[str, str | None]:
 
         # numba.config sets its settings through globals() at import, out of a type checker's sight
         numba_cpu = numba.config.CPU_NAME or llvm.get_host_cpu_name()  # type: ignore[attr-defined]
+        features = numba.config.CPU_FEATURES or llvm.get_host_cpu_features().flatten()  # type: ignore[attr-defined]
+        features_sha = hashlib.sha256(features.encode()).hexdigest()[:12]
     except ImportError:
-        numba_cpu = None
-    return {"numba_cpu": numba_cpu, "torch_cpu_capability": torch.backends.cpu.get_cpu_capability()}
+        numba_cpu = features_sha = None
+    return {
+        "numba_cpu": numba_cpu,
+        # two processors can share a target name (numba_cpu) and still differ in the features the
+        # kernels are compiled with, or in the chip: the same code and seed then part after hundreds
+        # of frames (reports/known_limits.md)
+        "numba_cpu_features_sha": features_sha,
+        "cpu_model": cpu_model(),
+        "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
+    }
+
+
+def cpu_model() -> str | None:
+    """The processor as vendor, family, model and stepping (Linux's /proc/cpuinfo), else platform's word."""
+    try:
+        first = Path("/proc/cpuinfo").read_text().split("\n\n", 1)[0]
+    except OSError:
+        return platform.processor() or None
+    fields = dict(line.split(":", 1) for line in first.splitlines() if ":" in line)
+    fields = {k.strip(): v.strip() for k, v in fields.items()}
+    keys = ("vendor_id", "cpu family", "model", "stepping")
+    if not all(k in fields for k in keys):
+        return platform.processor() or None
+    return f"{fields['vendor_id']} family {fields['cpu family']} model {fields['model']} stepping {fields['stepping']}"
 
 
 def collect(device: torch.device) -> dict[str, Any]:
