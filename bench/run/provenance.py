@@ -54,8 +54,8 @@ def cpu_target() -> dict[str, str | None]:
     return {
         "numba_cpu": numba_cpu,
         # two processors can share a target name (numba_cpu) and still differ in the features the
-        # kernels are compiled with, or in the chip: the same code and seed then part after hundreds
-        # of frames (reports/known_limits.md)
+        # kernels are compiled with, or in the chip: the same code and seed can then part late in a
+        # long run (reports/known_limits.md)
         "numba_cpu_features_sha": features_sha,
         "cpu_model": cpu_model(),
         "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
@@ -68,8 +68,7 @@ def cpu_model() -> str | None:
         first = Path("/proc/cpuinfo").read_text().split("\n\n", 1)[0]
     except OSError:
         return platform.processor() or None
-    fields = dict(line.split(":", 1) for line in first.splitlines() if ":" in line)
-    fields = {k.strip(): v.strip() for k, v in fields.items()}
+    fields = {k.strip(): v.strip() for k, v in (line.split(":", 1) for line in first.splitlines() if ":" in line)}
     keys = ("vendor_id", "cpu family", "model", "stepping")
     if not all(k in fields for k in keys):
         return platform.processor() or None
