@@ -14,6 +14,7 @@ from typing import Any
 METRICS_FILE = "metrics.json"
 KEYFRAMES_FILE = "keyframes.csv"
 MILESTONES_FILE = "milestones.csv"
+REFINE_CURVE_FILE = "refine_curve.csv"
 MIB = float(2**20)  # bytes per MiB: every *_mib figure
 
 STATUSES: tuple[str, ...] = ("ok", "lost", "failed", "interrupted", "running")
@@ -157,16 +158,20 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
     Field("kf_depth_frac", "", "share of the keyframe's pixels with observed depth"),
 )
 FIT_COLUMNS: tuple[str, ...] = ("kf_psnr_db", "kf_psnr_depth_db", "kf_psnr_nodepth_db", "kf_depth_frac")
+# a row's image metrics: the map as it was when the row was taken, under eval.protocol
+_ROW_IMAGE_FIELDS: tuple[Field, ...] = (
+    Field("psnr_db", "dB", "PSNR of the map as it was then (`eval.protocol`), on every `eval.every`-th frame so far"),
+    Field("ssim", "", "... SSIM"),
+    Field("ms_ssim", "", "... MS-SSIM (null for images under 176 px on a side)"),
+    Field("lpips", "", "... LPIPS (null without local AlexNet weights)"),
+    Field("eval_frames", "", "frames rendered for the row"),
+)
 MILESTONE_FIELDS: tuple[Field, ...] = (
     Field("frames", "", "frames tracked when the row was taken (an `eval.at_frames` entry)"),
     Field("path_length_m", "m", "ground-truth path length over those frames"),
     Field("path_length_ratio", "", "estimated / ground-truth path length over those frames, unaligned"),
     Field("ate_rmse_m", "m", "ATE RMSE over those frames (`eval.ate_align`): what a drive this long scores"),
-    Field("psnr_db", "dB", "PSNR of the map as it was then, on every `eval.every`-th of those frames"),
-    Field("ssim", "", "... SSIM"),
-    Field("ms_ssim", "", "... MS-SSIM (null for images under 176 px on a side)"),
-    Field("lpips", "", "... LPIPS (null without local AlexNet weights)"),
-    Field("eval_frames", "", "frames rendered for the row"),
+    *_ROW_IMAGE_FIELDS,
     Field("n_gaussians", "", "Gaussians in memory then"),
     Field("n_evicted", "", "Gaussians map residency held on disk then; the row's image metrics render them too"),
     Field("state_mib", "MiB", "Gaussian state then (params, grads, Adam moments, strategy state)"),
@@ -174,6 +179,13 @@ MILESTONE_FIELDS: tuple[Field, ...] = (
     Field("eval_s", "s", "time the row took (not SLAM time)"),
 )
 MILESTONE_COLUMNS: list[str] = [f.name for f in MILESTONE_FIELDS]
+REFINE_CURVE_FIELDS: tuple[Field, ...] = (
+    Field("refine_iters", "", "refinement iterations done when the row was taken (an `eval.at_refine_iters` entry)"),
+    Field("refine_s", "s", "refinement time to then, the rows' own time excluded (as the run's `refine_s`)"),
+    *_ROW_IMAGE_FIELDS,
+    Field("eval_s", "s", "time the row took (not refinement time)"),
+)
+REFINE_CURVE_COLUMNS: list[str] = [f.name for f in REFINE_CURVE_FIELDS]
 MEMORY_PART_COLUMNS: tuple[str, ...] = ("mem_state_mib", "mem_keyframes_mib", "mem_other_mib", "mem_work_mib")
 DISK_PART_COLUMNS: tuple[str, ...] = ("disk_state_mib", "disk_keyframes_mib", "disk_total_mib")
 DISK_PEAK_FIELD = "disk_peak_mib"
@@ -339,6 +351,10 @@ def markdown() -> str:
         f"`{MILESTONES_FILE}`, one row per `eval.at_frames` entry reached (absent without it):",
         "",
         *_table(MILESTONE_FIELDS),
+        "",
+        f"`{REFINE_CURVE_FILE}`, one row per `eval.at_refine_iters` entry (absent without it):",
+        "",
+        *_table(REFINE_CURVE_FIELDS),
     ]
     return "\n".join(lines)
 

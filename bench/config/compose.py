@@ -60,15 +60,29 @@ class EvalConfig:
     # PSNR/SSIM/LPIPS on every `every`-th frame); one milestones.csv row each, outside the SLAM time and the
     # memory windows. What a drive of that length would have scored, from one long run.
     at_frames: list[int] = field(default_factory=list)
+    # the refinement's curve: after this many of the final refinement's iterations (slam.refine_iters), the
+    # image metrics of the map as it is then; one refine_curve.csv row each, outside refine_s. Whether more
+    # refinement would still pay, from one run, without touching it (the iterations and their draws are the same)
+    at_refine_iters: list[int] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         check_rules(self, "eval.")
         frames = list(self.at_frames)
-        ok = all(isinstance(n, int) and not isinstance(n, bool) and n >= 3 for n in frames)
-        if not ok or frames != sorted(set(frames)):
+        if not _increasing(frames, 3):
             raise ConfigError(
                 f"eval.at_frames: expected increasing frame counts >= 3 (e.g. [50,100,200]), found {frames}"
             )
+        iters = list(self.at_refine_iters)
+        if not _increasing(iters, 1):
+            raise ConfigError(
+                f"eval.at_refine_iters: expected increasing iteration counts >= 1 (e.g. [500,1000,2000]), found {iters}"
+            )
+
+
+def _increasing(values: list[Any], lo: int) -> bool:
+    """Strictly increasing ints (not bools) of at least ``lo``."""
+    ok = all(isinstance(n, int) and not isinstance(n, bool) and n >= lo for n in values)
+    return ok and values == sorted(set(values))
 
 
 @dataclass
@@ -124,6 +138,12 @@ class RunConfig:
 
     def __post_init__(self) -> None:
         check_rules(self, "")
+        iters = list(self.eval.at_refine_iters)
+        if iters and iters[-1] > self.slam.refine_iters:
+            raise ConfigError(
+                f"eval.at_refine_iters: expected iteration counts up to slam.refine_iters={self.slam.refine_iters},"
+                f" found {iters}"
+            )
 
 
 def to_run_config(cfg: DictConfig | RunConfig) -> RunConfig:

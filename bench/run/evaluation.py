@@ -6,6 +6,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -21,7 +22,7 @@ from bench.slam.se3 import inverse
 from bench.slam.system import System
 
 if TYPE_CHECKING:
-    from bench.run.loop import LoopOutcome
+    from bench.run.loop import FlushedRows, LoopOutcome
     from bench.run.setup import RunSetup
 
 log = logging.getLogger(__name__)
@@ -63,9 +64,18 @@ def finish(
     metrics["prune_candidates_total"] = sum(w["n_candidates"] for w in drive.windows)
     metrics["keep_ratio"] = parts.keys["keep_ratio"]  # as in run.keep_ratio: null when nothing is pruned
     if cfg.slam.refine_iters > 0 and not partial:
-        with timer.phase("refine"), Phase("refine", cfg.slam.refine_iters, "iteration", cfg.progress) as bar:
-            system.refine(cfg.slam.refine_iters, on_step=bar.update)
-        metrics["refine_s"] = round(timer.totals()["refine"], 3)
+        from bench.run.loop import FlushedRows
+
+        with (
+            FlushedRows(
+                out / schema.REFINE_CURVE_FILE, schema.REFINE_CURVE_COLUMNS, False, bool(cfg.eval.at_refine_iters)
+            ) as rows,
+            timer.phase("refine"),
+            Phase("refine", cfg.slam.refine_iters, "iteration", cfg.progress) as bar,
+        ):
+            curve = RefineCurve(cfg, parts, n_done, device, rows, bar.update)
+            system.refine(cfg.slam.refine_iters, on_step=curve.step)
+        metrics["refine_s"] = round(timer.totals()["refine"] - curve.eval_s, 3)  # the curve's rows are not refinement
     est_c2w = tracked_c2w(system, n_done)
     t_eval = time.perf_counter()
     metrics.update(evaluate(cfg, out, parts, est_c2w, drive, device, images=not partial, into=metrics))
@@ -122,8 +132,6 @@ def evaluate(
     traj_est.txt is already on disk, appended frame by frame. ``into`` gets the trajectory metrics
     before any frame is rendered, so a stop during the image metrics keeps them.
     """
-    from bench.metrics.lpips import LPIPS
-    from bench.metrics.protocol import frame_metrics, mean_metrics, protocol_mask
     from bench.metrics.trajectory import Trajectory, ate, path_length_ratio, rpe, write_tum
 
     ev = cfg.eval
@@ -156,6 +164,65 @@ def evaluate(
         into.update(res)
     if not images:
         return res
+    res.update(image_metrics(cfg, parts, est_c2w, device))
+    if min(parts.seq.height, parts.seq.width) < MS_SSIM_MIN_PX:
+        log.info(
+            "ms_ssim: n/a: %dx%d px images are smaller than the %d px MS-SSIM needs on a side",
+            parts.seq.height,
+            parts.seq.width,
+            MS_SSIM_MIN_PX,
+        )
+    return res
+
+
+class RefineCurve:
+    """The final refinement's curve (``eval.at_refine_iters``): after each listed iteration, the image metrics of
+    the map as it is then, one flushed ``refine_curve.csv`` row each.
+
+    Rendering reads the map under ``no_grad`` and draws no random number, so the refinement's iterations, and the
+    map it ends with, are the ones a run without the curve makes (``tests/test_refine_curve.py``). The rows' time
+    is kept apart (``eval_s``) and taken out of ``refine_s``."""
+
+    def __init__(
+        self,
+        cfg: RunConfig,
+        parts: RunSetup,
+        n_done: int,
+        device: torch.device,
+        rows: FlushedRows,
+        tick: Callable[[], None],
+    ) -> None:
+        self.cfg, self.parts, self.n_done, self.device, self.rows, self.tick = cfg, parts, n_done, device, rows, tick
+        self.at = set(cfg.eval.at_refine_iters)
+        self.done, self.eval_s, self.t0 = 0, 0.0, time.perf_counter()
+
+    def step(self) -> None:
+        """Called once an iteration is done (``Mapper.refine``'s ``on_step``)."""
+        self.tick()
+        self.done += 1
+        if self.done not in self.at:
+            return
+        t = time.perf_counter()
+        est_c2w = tracked_c2w(self.parts.system, self.n_done)
+        res = image_metrics(self.cfg, self.parts, est_c2w, self.device)
+        eval_s = time.perf_counter() - t
+        row = {k: res.get(k) for k in ("psnr_db", "ssim", "ms_ssim", "lpips", "eval_frames")}
+        row.update(
+            refine_iters=self.done,
+            refine_s=round(t - self.t0 - self.eval_s, 3),
+            eval_s=round(eval_s, 3),
+        )
+        self.eval_s += eval_s
+        self.rows.writerow(row)
+
+
+def image_metrics(cfg: RunConfig, parts: RunSetup, est_c2w: list[torch.Tensor], device: torch.device) -> dict[str, Any]:
+    """PSNR/SSIM/MS-SSIM/LPIPS of the map as it is, under ``eval.protocol``, at every ``eval.every``-th tracked pose."""
+    from bench.metrics.lpips import LPIPS
+    from bench.metrics.protocol import frame_metrics, mean_metrics, protocol_mask
+
+    ev = cfg.eval
+    res: dict[str, Any] = {}
     idx = list(range(0, len(est_c2w), max(1, ev.every)))
     near_m, far_m = eval_depth_range(cfg.dataset)
     lp = parts.lpips or (LPIPS.from_weights(ev.lpips_weights) if ev.lpips else None)
@@ -178,13 +245,6 @@ def evaluate(
         res["eval_mask_frac"] = None if mask_frac is None else round(mask_frac, 5)
         if ev.protocol == "splatam":
             res["eval_depth_range_m"] = [near_m, far_m]
-    if min(parts.seq.height, parts.seq.width) < MS_SSIM_MIN_PX:
-        log.info(
-            "ms_ssim: n/a: %dx%d px images are smaller than the %d px MS-SSIM needs on a side",
-            parts.seq.height,
-            parts.seq.width,
-            MS_SSIM_MIN_PX,
-        )
     res["eval_frames"] = len(idx)
     return res
 
