@@ -5,7 +5,7 @@ change to what the run computes) and prints two tables per config:
 
 - per phase (tracking, mapping, densification, pruning, evaluation, refinement): seconds, share of
   the total, and ms per optimisation iteration where the phase iterates;
-- within one iteration of tracking and of mapping: projection, binning and sorting, raster
+- within one iteration of tracking, of mapping and of the final refinement: projection, binning and sorting, raster
   forward, raster backward, loss, projection backward, autograd glue (the backward of everything
   torch differentiates itself: loss, conic inversion, concatenations), Adam step, and the rest.
 
@@ -87,6 +87,7 @@ class Profile:
     def __init__(self) -> None:
         from bench.run import evaluation as run_mod
         from bench.slam import raster, raster_fused, system
+        from bench.slam.raster_fused import autograd as fused_autograd
 
         self.clock = Clock()
         self.phase = "other"
@@ -142,9 +143,9 @@ class Profile:
         _wrap(raster, "_front", self.clock, lab("projection"))
         _wrap(raster, "_front_fused", self.clock, lab("projection"))
         _wrap(raster_fused, "bin_pairs", self.clock, lab("binning"))
-        _wrap(raster_fused._Composite, "forward", self.clock, lab("raster_fwd"), static=True)
-        _wrap(raster_fused._Composite, "backward", self.clock, lab("raster_bwd"), static=True)
-        _wrap(raster_fused._Project, "backward", self.clock, lab("proj_bwd"), static=True)
+        _wrap(fused_autograd._Composite, "forward", self.clock, lab("raster_fwd"), static=True)
+        _wrap(fused_autograd._Composite, "backward", self.clock, lab("raster_bwd"), static=True)
+        _wrap(fused_autograd._Project, "backward", self.clock, lab("proj_bwd"), static=True)
         _wrap(raster, "_render_torch", self.clock, lab("raster_fwd"))
         for name in ("_tracking_loss", "_depth_l1", "_mapping_loss"):
             if hasattr(sysc, name):
@@ -167,7 +168,7 @@ class Profile:
             per = f"{phase_ms[p] / n:8.1f}" if n else f"{'':>8}"
             lines.append(f"{p:<14} {phase_ms[p] / 1e3:8.2f} {phase_ms[p] / max(total, 1e-9):6.1%} {n:6d} {per}")
         lines.append(f"{'total':<14} {total / 1e3:8.2f}")
-        for p in ("tracking", "mapping"):
+        for p in ("tracking", "mapping", "refine"):
             n = self.iters.get(p, 0)
             if not n:
                 continue
