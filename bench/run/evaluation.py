@@ -18,11 +18,12 @@ from bench.config.compose import RunConfig
 from bench.measure.progress import Phase
 from bench.metrics.image import MS_SSIM_MIN_PX
 from bench.run.export import MAP_FILE, write_map
+from bench.run.rows import FlushedRows
 from bench.slam.se3 import inverse
 from bench.slam.system import System
 
 if TYPE_CHECKING:
-    from bench.run.loop import FlushedRows, LoopOutcome
+    from bench.run.loop import LoopOutcome
     from bench.run.setup import RunSetup
 
 log = logging.getLogger(__name__)
@@ -64,8 +65,6 @@ def finish(
     metrics["prune_candidates_total"] = sum(w["n_candidates"] for w in drive.windows)
     metrics["keep_ratio"] = parts.keys["keep_ratio"]  # as in run.keep_ratio: null when nothing is pruned
     if cfg.slam.refine_iters > 0 and not partial:
-        from bench.run.loop import FlushedRows
-
         with (
             FlushedRows(
                 out / schema.REFINE_CURVE_FILE, schema.REFINE_CURVE_COLUMNS, False, bool(cfg.eval.at_refine_iters)

@@ -6,7 +6,6 @@ Checkpoints are written from here (``bench.run.checkpoint``), after a keyframe's
 
 from __future__ import annotations
 
-import csv
 import json
 import logging
 import time
@@ -25,6 +24,7 @@ from bench.run import checkpoint as ckpt
 from bench.run.evaluation import evaluate, tracked_c2w
 from bench.run.export import save_snapshot
 from bench.run.record import RunRecord
+from bench.run.rows import FlushedRows
 from bench.run.setup import RunSetup, inner_strategy
 from bench.run.signals import Interrupted, Preemption, signal_behind
 from bench.slam.se3 import inverse
@@ -159,33 +159,6 @@ def run_frames(
             drive.tail = {**parts.probe.end_window(), "n_gaussians": len(system.map)}
             parts.probe.close()
     return drive
-
-
-class FlushedRows:
-    """A csv file written a row at a time and flushed after each (appended to on resume); no file when off."""
-
-    def __init__(self, path: Path, columns: list[str], append: bool, on: bool = True) -> None:
-        self.path, self.columns, self.append, self.on = path, columns, append, on
-        self._fh: Any = None
-
-    def __enter__(self) -> FlushedRows:
-        if self.on:
-            self._fh = open(self.path, "a" if self.append else "w", newline="")
-            self._writer = csv.DictWriter(self._fh, fieldnames=self.columns)
-            if not self.append:
-                self._writer.writeheader()
-                self._fh.flush()
-        elif not self.append:
-            self.path.unlink(missing_ok=True)  # a previous run's rows are not this run's
-        return self
-
-    def writerow(self, row: dict[str, Any]) -> None:
-        self._writer.writerow(row)
-        self._fh.flush()
-
-    def __exit__(self, *exc: object) -> None:
-        if self._fh is not None:
-            self._fh.close()
 
 
 def write_checkpoint(
