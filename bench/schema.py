@@ -166,6 +166,7 @@ _ROW_IMAGE_FIELDS: tuple[Field, ...] = (
     Field("lpips", "", "... LPIPS (null without local AlexNet weights)"),
     Field("eval_frames", "", "frames rendered for the row"),
 )
+ROW_IMAGE_COLUMNS: tuple[str, ...] = tuple(f.name for f in _ROW_IMAGE_FIELDS)
 MILESTONE_FIELDS: tuple[Field, ...] = (
     Field("frames", "", "frames tracked when the row was taken (an `eval.at_frames` entry)"),
     Field("path_length_m", "m", "ground-truth path length over those frames"),

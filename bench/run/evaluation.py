@@ -64,6 +64,7 @@ def finish(
     metrics["gaussians_pruned_total"] = sum(w["n_pruned"] for w in drive.windows)
     metrics["prune_candidates_total"] = sum(w["n_candidates"] for w in drive.windows)
     metrics["keep_ratio"] = parts.keys["keep_ratio"]  # as in run.keep_ratio: null when nothing is pruned
+    est_c2w = tracked_c2w(system, n_done)  # refinement fits the map only: the poses stay as tracked
     if cfg.slam.refine_iters > 0 and not partial:
         with (
             FlushedRows(
@@ -72,10 +73,9 @@ def finish(
             timer.phase("refine"),
             Phase("refine", cfg.slam.refine_iters, "iteration", cfg.progress) as bar,
         ):
-            curve = RefineCurve(cfg, parts, n_done, device, rows, bar.update)
+            curve = RefineCurve(cfg, parts, est_c2w, device, rows, bar.update)
             system.refine(cfg.slam.refine_iters, on_step=curve.step)
         metrics["refine_s"] = round(timer.totals()["refine"] - curve.eval_s, 3)  # the curve's rows are not refinement
-    est_c2w = tracked_c2w(system, n_done)
     t_eval = time.perf_counter()
     metrics.update(evaluate(cfg, out, parts, est_c2w, drive, device, images=not partial, into=metrics))
     metrics["eval_s"] = round(time.perf_counter() - t_eval, 3)  # ATE, rendering, PSNR/SSIM/LPIPS
@@ -186,12 +186,12 @@ class RefineCurve:
         self,
         cfg: RunConfig,
         parts: RunSetup,
-        n_done: int,
+        est_c2w: list[torch.Tensor],
         device: torch.device,
         rows: FlushedRows,
         tick: Callable[[], None],
     ) -> None:
-        self.cfg, self.parts, self.n_done, self.device, self.rows, self.tick = cfg, parts, n_done, device, rows, tick
+        self.cfg, self.parts, self.est_c2w, self.device, self.rows, self.tick = cfg, parts, est_c2w, device, rows, tick
         self.at = set(cfg.eval.at_refine_iters)
         self.done, self.eval_s, self.t0 = 0, 0.0, time.perf_counter()
 
@@ -202,10 +202,9 @@ class RefineCurve:
         if self.done not in self.at:
             return
         t = time.perf_counter()
-        est_c2w = tracked_c2w(self.parts.system, self.n_done)
-        res = image_metrics(self.cfg, self.parts, est_c2w, self.device)
+        res = image_metrics(self.cfg, self.parts, self.est_c2w, self.device)
         eval_s = time.perf_counter() - t
-        row = {k: res.get(k) for k in ("psnr_db", "ssim", "ms_ssim", "lpips", "eval_frames")}
+        row = {k: res.get(k) for k in schema.ROW_IMAGE_COLUMNS}
         row.update(
             refine_iters=self.done,
             refine_s=round(t - self.t0 - self.eval_s, 3),

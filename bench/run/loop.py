@@ -215,19 +215,7 @@ def milestone_row(cfg: RunConfig, parts: RunSetup, drive: LoopOutcome, out: Path
     with system.whole_map():  # what map residency holds on disk is scored too, as at the end of a run
         res = evaluate(cfg, out, parts, est_c2w, drive, system.device, write_gt=False)
     mem = schema.memory_summary(drive.windows, system.device.type)
-    row = {
-        k: res.get(k)
-        for k in (
-            "path_length_m",
-            "path_length_ratio",
-            "ate_rmse_m",
-            "psnr_db",
-            "ssim",
-            "ms_ssim",
-            "lpips",
-            "eval_frames",
-        )
-    }
+    row = {k: res.get(k) for k in ("path_length_m", "path_length_ratio", "ate_rmse_m", *schema.ROW_IMAGE_COLUMNS)}
     row.update(
         frames=n_done,
         n_gaussians=len(system.map),
