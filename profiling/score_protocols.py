@@ -7,7 +7,10 @@ renders the run's final map (``map.ply``) at its estimated poses (``traj_est.txt
 share of pixels each mask keeps. No SLAM is rerun. The run's own figures in ``metrics.json`` are
 shown beside, as a check that the renders are the run's.
 
-    python profiling/score_protocols.py RUN_DIR [RUN_DIR ...] [--csv OUT.csv]
+``--per-frame OUT.csv`` also writes each frame's figures: a mean over a drive hides whether its gap
+is spread evenly or sits in a stretch of the road (issue 39 asks which).
+
+    python profiling/score_protocols.py RUN_DIR [RUN_DIR ...] [--csv OUT.csv] [--per-frame OUT.csv]
 """
 
 from __future__ import annotations
@@ -28,7 +31,8 @@ sys.path.insert(0, str(ROOT))  # score with the checkout this file sits in
 PROTOCOLS = ("full", "splatam", "released")
 
 
-def score_run(run_dir: Path, protocols: tuple[str, ...] = PROTOCOLS) -> list[dict]:
+def score_run(run_dir: Path, protocols: tuple[str, ...] = PROTOCOLS, per_frame: list[dict] | None = None) -> list[dict]:
+    """The run's mean figures, one row per protocol; each frame's figures appended to ``per_frame``."""
     from bench.cli.validate import validate
     from bench.metrics.protocol import frame_metrics, mean_metrics, protocol_mask
     from bench.metrics.trajectory import read_tum
@@ -70,7 +74,10 @@ def score_run(run_dir: Path, protocols: tuple[str, ...] = PROTOCOLS) -> list[dic
             frame = seq[i]
             for protocol in protocols:
                 mask = protocol_mask(protocol, frame.depth_m, out.alpha, near, far)
-                frames[protocol].append(frame_metrics(protocol, pred, frame.rgb, mask))
+                scored = frame_metrics(protocol, pred, frame.rgb, mask)
+                frames[protocol].append(scored)
+                if per_frame is not None:
+                    per_frame.append({"run": str(run_dir), "protocol": protocol, "frame": i, **scored})
     stored = json.loads((run_dir / "metrics.json").read_text()).get("metrics", {})
     rows = []
     for protocol in protocols:
@@ -95,12 +102,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("runs", nargs="+", type=Path)
     ap.add_argument("--csv", type=Path, default=None)
+    ap.add_argument("--per-frame", type=Path, default=None, help="also write each frame's figures to this CSV")
     ap.add_argument("--protocols", default=",".join(PROTOCOLS), help="comma-separated subset of " + ",".join(PROTOCOLS))
     args = ap.parse_args()
     protocols = tuple(p for p in args.protocols.split(",") if p)
     if not protocols or set(protocols) - set(PROTOCOLS):
         ap.error(f"--protocols: expected a comma-separated subset of {','.join(PROTOCOLS)}, found {args.protocols!r}")
-    rows = [row for run in args.runs for row in score_run(run, protocols)]
+    per_frame: list[dict] | None = [] if args.per_frame else None
+    rows = [row for run in args.runs for row in score_run(run, protocols, per_frame)]
 
     def fmt(v, spec: str) -> str:
         return "-" if v is None else format(v, spec)
@@ -118,6 +127,11 @@ def main() -> None:
             w = csv.DictWriter(fh, fieldnames=list(rows[0]))
             w.writeheader()
             w.writerows(rows)
+    if args.per_frame and per_frame:
+        with args.per_frame.open("w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(per_frame[0]))
+            w.writeheader()
+            w.writerows(per_frame)
 
 
 if __name__ == "__main__":
