@@ -64,7 +64,16 @@ def map_color(system, w2c: torch.Tensor, params: list[torch.Tensor]) -> torch.Te
     from bench.slam.raster import rasterize
 
     cfg = system.cfg
-    out = rasterize(*params, w2c, system.K, system.W, system.H, depth_far_m=cfg.depth_far_m, backend=cfg.raster_backend)
+    out = rasterize(
+        *params,
+        w2c,
+        system.K,
+        system.W,
+        system.H,
+        depth_far_m=cfg.depth_far_m,
+        backend=cfg.raster_backend,
+        antialiased=cfg.raster_antialias,
+    )
     return out.color
 
 

@@ -60,6 +60,7 @@ def main() -> None:
                     s.H,
                     depth_far_m=cfg.slam.depth_far_m,
                     backend=cfg.slam.raster_backend,
+                    antialiased=cfg.slam.raster_antialias,
                 )
             return region_psnr_db((out.color.clamp(0, 1) - rgb0).pow(2).mean(-1), has)
 

@@ -69,6 +69,7 @@ def score_run(run_dir: Path, protocols: tuple[str, ...] = PROTOCOLS, per_frame: 
                 seq.height,
                 depth_far_m=cfg.slam.depth_far_m,
                 backend=cfg.slam.raster_backend,
+                antialiased=cfg.slam.raster_antialias,  # as the run rendered
             )
             pred = out.color.clamp(0, 1)
             frame = seq[i]

@@ -105,6 +105,11 @@ class SlamConfig:
     # compositing backend (bench/slam/raster.py): auto = the compiled "fused" kernels on CPU; on CUDA
     # "gsplat" where it is installed (bench/slam/raster_gsplat.py), else the "torch" reference
     raster_backend: str = setting("auto", "str", choices=BACKENDS)
+    # Mip-Splatting's 2D filter (gsplat's rasterize_mode="antialiased"): each opacity scaled by
+    # sqrt(det S / det(S + 0.3 I)) so a Gaussian fitted in a near view keeps its integral, not a 0.3 px
+    # blob at full opacity, in farther views (bench/slam/raster.py:antialias_compensation). Off = the
+    # paper's base system (SplaTAM's rasterizer has only the low-pass).
+    raster_antialias: bool = False
     mapping_iters: int = setting(100, "int", lo=0)  # paper: 100 per keyframe
     # when keyframes get those iterations: "keyframes" = every keyframe (the paper's text); "first" = the
     # first keyframe only, later keyframes only densify (and prune), as the released Pocket-SLAM code

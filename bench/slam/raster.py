@@ -85,6 +85,22 @@ def covariance3d(log_scales: torch.Tensor, quats: torch.Tensor) -> torch.Tensor:
     return M @ M.transpose(1, 2)
 
 
+def antialias_compensation(cov: torch.Tensor) -> torch.Tensor:
+    """Mip-Splatting's 2D filter (gsplat's ``rasterize_mode="antialiased"``): the opacity factor
+    sqrt(det(S) / det(S + 0.3 I)) [N] for screen covariances ``cov`` [N, 3] (a, b, c) that already hold
+    the 0.3 px low-pass.
+
+    Why: the low-pass alone widens a sub-pixel Gaussian to 0.3 px at full opacity, so a Gaussian fitted
+    up close (a later, nearer view on a forward drive) paints a thicker, brighter blob into every
+    earlier, farther view. The factor keeps the blob's integral, not its peak (Yu et al., CVPR 2024,
+    eq. 9; gsplat ``fully_fused_projection``'s ``compensations``)."""
+    a, b, c = cov.unbind(-1)
+    det = a * c - b * b
+    det_raw = (a - LOWPASS_PX2) * (c - LOWPASS_PX2) - b * b
+    # below the clamp the factor carries no gradient, where its square root's would be unbounded
+    return (det_raw / det.clamp_min(1e-12)).clamp_min(1e-12).sqrt()
+
+
 def project(
     means: torch.Tensor, cov3d: torch.Tensor, w2c: torch.Tensor, K: torch.Tensor, width: int, height: int
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -261,6 +277,7 @@ def rasterize(
     depth_far_m: float | None = None,
     backend: str = "auto",
     extra: frozenset[str] | tuple[str, ...] = (),
+    antialiased: bool = False,
 ) -> RasterOutput:
     """Render Gaussians (world frame) through camera ``w2c`` [4, 4] with intrinsics ``K`` [3, 3].
 
@@ -276,6 +293,9 @@ def rasterize(
 
     ``extra``: the pruning criteria's statistics to compute besides (``EXTRA_STATS``; forward only,
     without gradient); none by default, so a run whose strategy reads none never pays for them.
+
+    ``antialiased``: scale each opacity by ``antialias_compensation`` of its screen covariance, on
+    every backend (``slam.raster_antialias``). The statistics then see the scaled opacities.
     """
     extra = check_extra(extra)
     backend = resolve_backend(backend, means.device)
@@ -305,12 +325,18 @@ def rasterize(
                 bg,
                 near_m,
                 stats,
+                antialiased,
             )
         )
     if backend == "fused":
         ff = _front_fused(means, log_scales, quats, w2c, K, width, height, near_m)
+        if antialiased:  # [N]; zero covariance (culled by its centre) gives 0, and those draw nothing
+            opacities = opacities * antialias_compensation(ff.cov).to(opacities.dtype)
         return _render_fused(ff, opacities, colors, depth_far_m, bg, width, height, stats, extra)
     fr = _front(means, log_scales, quats, w2c, K, width, height, near_m)
+    if antialiased:
+        cov = torch.stack([fr.cov2d[:, 0, 0], fr.cov2d[:, 0, 1], fr.cov2d[:, 1, 1]], -1)  # [N, 3]
+        opacities = opacities * antialias_compensation(cov).to(opacities.dtype)
     z_paint = _paint_depth(fr.z, depth_far_m)
     return _render_torch(fr, opacities, colors, z_paint, bg, width, height, stats, extra)
 

@@ -65,7 +65,7 @@ def unavailable_reason() -> str | None:
 
 
 def rasterize_gsplat(
-    means, log_scales, quats, opacities, colors, z, z_paint, w2c, K, width, height, bg, near_m, stats
+    means, log_scales, quats, opacities, colors, z, z_paint, w2c, K, width, height, bg, near_m, stats, antialiased=False
 ) -> dict:
     """Render with gsplat (CUDA tensors): the fields of ``RasterOutput``, as a dict.
 
@@ -80,7 +80,7 @@ def rasterize_gsplat(
     tiles_y = (height + TILE_PX - 1) // TILE_PX
     half = torch.zeros(3, 3, device=device, dtype=K.dtype)
     half[0, 2] = half[1, 2] = 0.5
-    _, _, gids, radii, m2_g, depth_g, conics, _ = fully_fused_projection(
+    _, _, gids, radii, m2_g, depth_g, conics, comps = fully_fused_projection(
         means,
         None,
         quats,
@@ -94,6 +94,7 @@ def rasterize_gsplat(
         far_plane=1e10,
         packed=True,
         opacities=opacities.detach(),
+        calc_compensations=antialiased,  # gsplat's rasterize_mode="antialiased" (raster.antialias_compensation)
     )
     gid = gids.long()  # [V] the Gaussians gsplat renders
     # [N, 2] on the reference's pixel grid; the rasterizer reads it back through ``gid``, so the loss
@@ -149,7 +150,7 @@ def rasterize_gsplat(
             max_weight=max_weight,
         )
     feat = torch.cat([colors, z_paint[:, None]], 1)[gid]  # [V, 4] colour, painted depth
-    op_v = opacities[gid]
+    op_v = opacities[gid] if comps is None else opacities[gid] * comps
     render, alphas = rasterize_to_pixels(
         means2d[gid] + 0.5,
         conics,

@@ -194,6 +194,7 @@ class System(Tracking, Mapping, PruneDiagnostics):
             depth_far_m=self.cfg.depth_far_m,
             backend=self.cfg.raster_backend,
             extra=extra,
+            antialiased=self.cfg.raster_antialias,
         )
 
     def _phase(self, name: str):

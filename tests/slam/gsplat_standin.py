@@ -34,6 +34,7 @@ def fully_fused_projection(
     far_plane=1e10,
     packed=False,
     opacities=None,
+    calc_compensations=False,
 ):
     assert covars is None and packed
     R, t = viewmats[0, :3, :3], viewmats[0, :3, 3]
@@ -49,7 +50,8 @@ def fully_fused_projection(
         [torch.stack([fx / z, zero, -fx * tx / z**2], -1), torch.stack([zero, fy / z, -fy * ty / z**2], -1)], -2
     )
     T = J @ R
-    cov = T @ covariance3d(torch.log(scales), quats) @ T.transpose(1, 2) + eps2d * torch.eye(2)
+    raw = T @ covariance3d(torch.log(scales), quats) @ T.transpose(1, 2)  # [N, 2, 2] before the low-pass
+    cov = raw + eps2d * torch.eye(2)
     m2 = torch.stack([fx * x / z + cx, fy * y / z + cy], -1)
     det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] ** 2
     conics = torch.stack([cov[:, 1, 1], -cov[:, 0, 1], cov[:, 0, 0]], -1) / det[:, None]
@@ -64,7 +66,11 @@ def fully_fused_projection(
         gid = ok.nonzero().flatten()
     radii = torch.stack([rx, ry], -1)[gid].int()
     zeros = torch.zeros_like(gid)
-    return zeros, zeros, gid, radii, m2[gid], z[gid], conics[gid], None
+    comps = None
+    if calc_compensations:  # gsplat: sqrt(max(0, det_orig / det_blur))
+        det_raw = raw[:, 0, 0] * raw[:, 1, 1] - raw[:, 0, 1] ** 2
+        comps = (det_raw / det).clamp_min(1e-12).sqrt()[gid]
+    return zeros, zeros, gid, radii, m2[gid], z[gid], conics[gid], comps
 
 
 @torch.no_grad()

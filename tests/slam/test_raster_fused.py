@@ -53,24 +53,45 @@ def test_values_and_stats_match_torch(W, H, seed):
     assert got.hit_count.sum() > 0
 
 
-def grads(params, K, W, H, backend, target, w2c_base):
+def grads(params, K, W, H, backend, target, w2c_base, **kw):
     leaves = [t.clone().requires_grad_(True) for t in params]
     xi = torch.zeros(6, requires_grad=True)
-    out = rasterize(*leaves, se3_exp(xi) @ w2c_base, K, W, H, backend=backend)
+    out = rasterize(*leaves, se3_exp(xi) @ w2c_base, K, W, H, backend=backend, **kw)
     loss = (out.color - target).abs().mean() + 0.1 * out.depth.mean() + 0.3 * (out.alpha - 0.5).pow(2).mean()
     loss.backward()
     return [t.grad for t in leaves] + [xi.grad]
 
 
+@pytest.mark.parametrize("antialiased", [False, True])
 @pytest.mark.parametrize("seed,W,H", [(0, 40, 32), (2, 33, 17)])
-def test_gradients_match_torch_including_pose(seed, W, H):
+def test_gradients_match_torch_including_pose(seed, W, H, antialiased):
     *params, K = scene(seed=seed)
     target = torch.rand(H, W, 3, generator=torch.Generator().manual_seed(9))
-    ref = grads(params, K, W, H, "torch", target, se3_exp(POSE))
-    got = grads(params, K, W, H, "fused", target, se3_exp(POSE))
+    ref = grads(params, K, W, H, "torch", target, se3_exp(POSE), antialiased=antialiased)
+    got = grads(params, K, W, H, "fused", target, se3_exp(POSE), antialiased=antialiased)
     for name, g, r in zip(["means", "log_scales", "quats", "opacity", "colors", "pose"], got, ref, strict=True):
         assert r.abs().max() > 0, name
         torch.testing.assert_close(g, r, atol=2e-6, rtol=2e-3, msg=name)
+
+
+def test_antialiased_values_match_torch_and_keep_a_small_gaussians_integral():
+    """The 2D filter on both backends alike; it dims a sub-pixel Gaussian (whose low-passed footprint
+    would otherwise paint a 0.3 px blob at full opacity) and leaves a wide one almost as it was."""
+    W, H = 40, 32
+    *params, K = scene(seed=3, scale=(0.002, 0.3))
+    ref, got = both(params, K, W, H, antialiased=True)
+    assert_same_images(ref, got)
+    plain = rasterize(*params, se3_exp(POSE), K, W, H, backend="fused")
+    assert (got.alpha <= plain.alpha + 1e-6).all() and got.alpha.sum() < plain.alpha.sum()
+
+    def one(scale_m: float, antialiased: bool) -> float:  # the silhouette's integral of one Gaussian at 3 m
+        g = [torch.tensor([[0.0, 0.0, 3.0]]), torch.full((1, 3), scale_m).log(), torch.tensor([[1.0, 0, 0, 0]])]
+        out = rasterize(*g, torch.tensor([0.5]), torch.ones(1, 3), torch.eye(4), K, W, H, antialiased=antialiased)
+        return float(out.alpha.sum())
+
+    tiny, wide = 0.003, 0.3  # 0.03 px and 3 px of standard deviation at fx = 30
+    assert one(tiny, True) < 0.25 * one(tiny, False)
+    assert one(wide, True) == pytest.approx(one(wide, False), rel=0.05)
 
 
 def test_saturated_tiles_stop_compositing():

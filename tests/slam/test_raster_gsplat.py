@@ -42,13 +42,15 @@ def _raster_bench():
     return mod
 
 
-def render_and_grads(params, K, W, H, backend, device):
+def render_and_grads(params, K, W, H, backend, device, antialiased=False):
     """Outputs (stats on) and the gradients of a fixed loss: [means, log_scales, quats, opacity, colors,
     pose, screen means]."""
     for p in params:
         p.grad = None
     xi = POSE.clone().to(device).requires_grad_(True)
-    out = rasterize(*params, se3_exp(xi), K, W, H, stats=True, depth_far_m=60.0, backend=backend)
+    out = rasterize(
+        *params, se3_exp(xi), K, W, H, stats=True, depth_far_m=60.0, backend=backend, antialiased=antialiased
+    )
     out.means2d.retain_grad()
     target = torch.rand(H, W, 3, generator=torch.Generator().manual_seed(1)).to(device)
     loss = (out.color - target).abs().mean() + 0.1 * out.depth.mean() + out.alpha.mean()
@@ -91,9 +93,10 @@ def test_gsplat_on_cpu_is_one_config_error():
         resolve_backend("gsplat", torch.device("cpu"))
 
 
+@pytest.mark.parametrize("antialiased", [False, True])
 @pytest.mark.parametrize("kind", ["iso", "aniso"])
 @pytest.mark.parametrize("n,W,H", CPU_POINTS)
-def test_backend_code_over_the_standin_agrees_with_reference(monkeypatch, kind, n, W, H):
+def test_backend_code_over_the_standin_agrees_with_reference(monkeypatch, kind, n, W, H, antialiased):
     sys.path.insert(0, str(Path(__file__).parent))
     import gsplat_standin
 
@@ -101,8 +104,8 @@ def test_backend_code_over_the_standin_agrees_with_reference(monkeypatch, kind, 
     monkeypatch.setattr("bench.slam.raster_gsplat.unavailable_reason", lambda: None)
     monkeypatch.setattr("bench.slam.raster.resolve_backend", lambda backend, device: backend)
     params, K = _raster_bench().scene(n, W, H, torch.device("cpu"), kind=kind)
-    ref, ref_grads = render_and_grads(params, K, W, H, "torch", "cpu")
-    got, got_grads = render_and_grads(params, K, W, H, "gsplat", "cpu")
+    ref, ref_grads = render_and_grads(params, K, W, H, "torch", "cpu", antialiased)
+    got, got_grads = render_and_grads(params, K, W, H, "gsplat", "cpu", antialiased)
     assert_agree(ref, got, ref_grads, got_grads)
 
 
