@@ -57,9 +57,12 @@ def score_run(run_dir: Path, protocols: tuple[str, ...] = PROTOCOLS, per_frame: 
     with torch.no_grad():
         for i in range(0, len(est), max(1, cfg.eval.every)):
             w2c = torch.from_numpy(np.linalg.inv(c2w[i])).float()
+            log_scales = arrays["log_scales"]  # [N, 3]
+            if cfg.slam.isotropic:  # as System.render draws an isotropic map
+                log_scales = log_scales.mean(-1, keepdim=True).expand(-1, 3)
             out = rasterize(
                 arrays["means"],
-                arrays["log_scales"],
+                log_scales,
                 arrays["quats"],
                 torch.sigmoid(arrays["opacity_logits"]),
                 arrays["colors"],

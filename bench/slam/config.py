@@ -110,6 +110,11 @@ class SlamConfig:
     # blob at full opacity, in farther views (bench/slam/raster.py:antialias_compensation). Off = the
     # paper's base system (SplaTAM's rasterizer has only the low-pass).
     raster_antialias: bool = False
+    # one scale per Gaussian, as SplaTAM's (gaussian_distribution="isotropic"), the paper's base system;
+    # False = 3DGS's anisotropic ellipsoids. Rendered with the mean of the three log-scales, which get
+    # equal gradients and so stay equal (the map file keeps three columns either way). Why: a needle
+    # fitted to one view is wrong from the next; a sphere is the same from every view.
+    isotropic: bool = False
     mapping_iters: int = setting(100, "int", lo=0)  # paper: 100 per keyframe
     # when keyframes get those iterations: "keyframes" = every keyframe (the paper's text); "first" = the
     # first keyframe only, later keyframes only densify (and prune), as the released Pocket-SLAM code

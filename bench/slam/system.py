@@ -180,9 +180,12 @@ class System(Tracking, Mapping, PruneDiagnostics):
         mask = self.strategy.render_mask(MappingContext(self.keyframes.n_made, iteration, g, g.state, training))
         if mask is not None:
             op = op * mask
+        log_scales = g.log_scales
+        if self.cfg.isotropic:  # [N, 3], the three columns equal (SlamConfig.isotropic)
+            log_scales = log_scales.mean(-1, keepdim=True).expand(-1, 3)
         return rasterize(
             g.means,
-            g.log_scales,
+            log_scales,
             g.quats,
             op,
             g.colors,

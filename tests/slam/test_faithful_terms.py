@@ -103,6 +103,27 @@ def test_depth_outlier_mask_drops_a_planted_outlier_and_keeps_pixels_without_dep
     assert keep[mask & (depth > 0)].float().mean() > 0.5
 
 
+def test_isotropic_map_keeps_one_scale_per_gaussian_and_anisotropic_does_not(seq):
+    spread = {}
+    for iso in (True, False):
+        s = _system(seq, mapping_iters=10, isotropic=iso)
+        for i in range(2):
+            s.step(seq[i])
+        ls = s.map.log_scales.detach()  # [N, 3]
+        spread[iso] = float((ls.max(-1).values - ls.min(-1).values).max())
+    assert spread[True] < 1e-5 < 1e-2 < spread[False]
+
+
+def test_antialiased_render_dims_what_the_plain_one_paints(seq):
+    s = _system(seq, mapping_iters=3)
+    s.step(seq[0])
+    with torch.no_grad():
+        plain = s.render(torch.eye(4)).alpha
+        s.cfg.raster_antialias = True
+        dimmed = s.render(torch.eye(4)).alpha
+    assert (dimmed <= plain + 1e-6).all() and dimmed.sum() < plain.sum()
+
+
 @pytest.mark.parametrize("bad", [{"tracking_depth_outlier": 0.5}, {"feature_weight": -1.0}, {"lambda_ssim_map": 1.5}])
 def test_bad_values_are_one_line_errors(bad):
     with pytest.raises(ConfigError, match=f"slam.{next(iter(bad))}: expected"):
