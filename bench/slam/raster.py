@@ -97,8 +97,10 @@ def antialias_compensation(cov: torch.Tensor) -> torch.Tensor:
     a, b, c = cov.unbind(-1)
     det = a * c - b * b
     det_raw = (a - LOWPASS_PX2) * (c - LOWPASS_PX2) - b * b
-    # below the clamp the factor carries no gradient, where its square root's would be unbounded
-    return (det_raw / det.clamp_min(1e-12)).clamp_min(1e-12).sqrt()
+    # below the clamp the factor carries no gradient, where its square root's would be unbounded; a zero
+    # covariance (culled by its centre) or a degenerate one draws nothing, and gets 0
+    factor = (det_raw / det.clamp_min(1e-12)).clamp_min(1e-12).sqrt()
+    return torch.where(det > 0, factor, torch.zeros_like(factor))
 
 
 def project(
@@ -330,7 +332,7 @@ def rasterize(
         )
     if backend == "fused":
         ff = _front_fused(means, log_scales, quats, w2c, K, width, height, near_m)
-        if antialiased:  # [N]; zero covariance (culled by its centre) gives 0, and those draw nothing
+        if antialiased:  # [N]
             opacities = opacities * antialias_compensation(ff.cov).to(opacities.dtype)
         return _render_fused(ff, opacities, colors, depth_far_m, bg, width, height, stats, extra)
     fr = _front(means, log_scales, quats, w2c, K, width, height, near_m)

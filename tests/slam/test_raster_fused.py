@@ -7,7 +7,7 @@ import torch
 
 from bench.errors import ConfigError
 from bench.measure.memory import MemoryProbe
-from bench.slam.raster import rasterize, resolve_backend
+from bench.slam.raster import antialias_compensation, rasterize, resolve_backend
 from bench.slam.se3 import se3_exp
 
 POSE = torch.tensor([0.05, -0.02, 0.1, 0.02, -0.03, 0.01])
@@ -90,6 +90,8 @@ def test_antialiased_values_match_torch_and_keep_a_small_gaussians_integral():
         return float(out.alpha.sum())
 
     tiny, wide = 0.003, 0.3  # 0.03 px and 3 px of standard deviation at fx = 30
+    culled = antialias_compensation(torch.zeros(1, 3))  # a zero covariance: culled by its centre
+    assert float(culled) == 0.0
     assert one(tiny, True) < 0.25 * one(tiny, False)
     assert one(wide, True) == pytest.approx(one(wide, False), rel=0.05)
 
