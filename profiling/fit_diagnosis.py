@@ -61,11 +61,14 @@ def affine_gain_db(pred: torch.Tensor, target: torch.Tensor, sel: torch.Tensor) 
 def map_color(system, w2c: torch.Tensor, params: list[torch.Tensor]) -> torch.Tensor:
     """[H, W, 3] colour of ``params`` (means, log-scales, quats, opacities, colours: the map's, altered) at
     ``w2c``, rendered with the system's camera and settings, as ``System.render`` renders the map."""
-    from bench.slam.raster import rasterize
+    from bench.slam.raster import drawn_log_scales, rasterize
 
     cfg = system.cfg
+    means, log_scales, *rest = params
     out = rasterize(
-        *params,
+        means,
+        drawn_log_scales(log_scales, cfg.isotropic),
+        *rest,
         w2c,
         system.K,
         system.W,

@@ -28,7 +28,7 @@ def main() -> None:
     from bench.metrics.image import region_psnr_db
     from bench.run.determinism import repeatable
     from bench.run.setup import open_seq
-    from bench.slam.raster import rasterize
+    from bench.slam.raster import drawn_log_scales, rasterize
     from bench.slam.se3 import inverse
     from bench.slam.system import System
 
@@ -50,7 +50,7 @@ def main() -> None:
             with torch.no_grad():
                 out = rasterize(
                     params["means"][m],
-                    params["log_scales"][m],
+                    drawn_log_scales(params["log_scales"][m], cfg.slam.isotropic),
                     params["quats"][m],
                     torch.sigmoid(params["opacity_logits"][m]),
                     params["colors"][m],

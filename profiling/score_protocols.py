@@ -39,7 +39,7 @@ def score_run(run_dir: Path, protocols: tuple[str, ...] = PROTOCOLS, per_frame: 
     from bench.run.evaluation import eval_depth_range
     from bench.run.export import MAP_FILE, read_ply
     from bench.run.setup import open_seq
-    from bench.slam.raster import rasterize
+    from bench.slam.raster import drawn_log_scales, rasterize
 
     built = validate(OmegaConf.load(run_dir / "config.yaml"))
     cfg = built.config
@@ -54,12 +54,10 @@ def score_run(run_dir: Path, protocols: tuple[str, ...] = PROTOCOLS, per_frame: 
         c2w[i, :3, 3] = p
     near, far = eval_depth_range(cfg.dataset)  # the dataset's range, as the run's own evaluation reads it
     frames: dict[str, list] = {p: [] for p in protocols}
+    log_scales = drawn_log_scales(arrays["log_scales"], cfg.slam.isotropic)  # [N, 3] as System.render draws them
     with torch.no_grad():
         for i in range(0, len(est), max(1, cfg.eval.every)):
             w2c = torch.from_numpy(np.linalg.inv(c2w[i])).float()
-            log_scales = arrays["log_scales"]  # [N, 3]
-            if cfg.slam.isotropic:  # as System.render draws an isotropic map
-                log_scales = log_scales.mean(-1, keepdim=True).expand(-1, 3)
             out = rasterize(
                 arrays["means"],
                 log_scales,
@@ -126,16 +124,12 @@ def main() -> None:
             f"{fmt(r['ms_ssim'], '.4f')} | {fmt(r['mask_frac'], '.3f')} | {r['eval_frames']} | "
             f"{r['stored_protocol']}, {fmt(r['stored_psnr_db'], '.2f')} |"
         )
-    if args.csv:
-        with args.csv.open("w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
-    if args.per_frame and per_frame:
-        with args.per_frame.open("w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=list(per_frame[0]))
-            w.writeheader()
-            w.writerows(per_frame)
+    for path, table in ((args.csv, rows), (args.per_frame, per_frame)):
+        if path and table:
+            with path.open("w", newline="") as fh:
+                w = csv.DictWriter(fh, fieldnames=list(table[0]))
+                w.writeheader()
+                w.writerows(table)
 
 
 if __name__ == "__main__":

@@ -85,6 +85,12 @@ def covariance3d(log_scales: torch.Tensor, quats: torch.Tensor) -> torch.Tensor:
     return M @ M.transpose(1, 2)
 
 
+def drawn_log_scales(log_scales: torch.Tensor, isotropic: bool) -> torch.Tensor:
+    """The log-scales [N, 3] a map is drawn with: as stored, or under ``slam.isotropic`` their mean on every
+    axis (the three columns then get equal gradients and stay equal; the map file keeps all three)."""
+    return log_scales.mean(-1, keepdim=True).expand(-1, 3) if isotropic else log_scales
+
+
 def antialias_compensation(cov: torch.Tensor) -> torch.Tensor:
     """Mip-Splatting's 2D filter (gsplat's ``rasterize_mode="antialiased"``): the opacity factor
     sqrt(det(S) / det(S + 0.3 I)) [N] for screen covariances ``cov`` [N, 3] (a, b, c) that already hold
@@ -332,9 +338,7 @@ def rasterize(
         )
     if backend == "fused":
         ff = _front_fused(means, log_scales, quats, w2c, K, width, height, near_m)
-        if antialiased:  # [N]
-            opacities = opacities * antialias_compensation(ff.cov).to(opacities.dtype)
-        return _render_fused(ff, opacities, colors, depth_far_m, bg, width, height, stats, extra)
+        return _render_fused(ff, opacities, colors, depth_far_m, bg, width, height, stats, extra, antialiased)
     fr = _front(means, log_scales, quats, w2c, K, width, height, near_m)
     if antialiased:
         cov = torch.stack([fr.cov2d[:, 0, 0], fr.cov2d[:, 0, 1], fr.cov2d[:, 1, 1]], -1)  # [N, 3]
@@ -349,7 +353,7 @@ def _paint_depth(z: torch.Tensor, depth_far_m: float | None) -> torch.Tensor:
 
 
 def _render_fused(
-    ff: _FusedFront, opacities, colors, depth_far_m, bg, width, height, stats, extra=frozenset()
+    ff: _FusedFront, opacities, colors, depth_far_m, bg, width, height, stats, extra=frozenset(), antialiased=False
 ) -> RasterOutput:
     from bench.slam import raster_fused  # numba compiles on first use; the torch backend never needs it
 
@@ -362,12 +366,16 @@ def _render_fused(
     if stats:  # [N]: zero for the Gaussians out of view
         coverage, hit_count, max_weight = torch.zeros(n), torch.zeros(n, dtype=torch.int64), torch.zeros(n)
     if gid.numel():
-        inv = conic(*ff.cov.index_select(0, vis).unbind(-1))  # [V, 3]
+        cov_vis = ff.cov.index_select(0, vis)  # [V, 3]
+        inv = conic(*cov_vis.unbind(-1))  # [V, 3]
+        op_v = opacities.index_select(0, vis)  # [V]
+        if antialiased:  # on the Gaussians in view only, as everything after the projection here
+            op_v = op_v * antialias_compensation(cov_vis).to(op_v.dtype)
         feat = torch.cat([colors.index_select(0, vis), _paint_depth(z_v, depth_far_m)[:, None]], 1).float()  # [V, 4]
         acc, t_final, cov_v, hits_v, maxw_v = raster_fused.composite(
             ff.means2d.index_select(0, vis).float(),
             inv.float(),
-            opacities.index_select(0, vis).float(),
+            op_v.float(),
             feat,
             gid,
             tile_start,
@@ -386,7 +394,7 @@ def _render_fused(
             ex[vis] = extra_stats(
                 ff.means2d.index_select(0, vis),
                 inv,
-                opacities.index_select(0, vis),
+                op_v,
                 colors.index_select(0, vis),
                 gid,
                 tile_start,

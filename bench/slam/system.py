@@ -26,7 +26,7 @@ from bench.slam.keyframes import KeyframeStore
 from bench.slam.lost import LostDetector
 from bench.slam.mapping import Mapping
 from bench.slam.prune_diagnostics import PruneDiagnostics
-from bench.slam.raster import EXTRA_STATS, RasterOutput, rasterize, resolve_backend
+from bench.slam.raster import EXTRA_STATS, RasterOutput, drawn_log_scales, rasterize, resolve_backend
 from bench.slam.residency import STORE_DIR, MapResidency
 from bench.slam.se3 import inverse, so3_log
 from bench.slam.strategy import (
@@ -180,12 +180,9 @@ class System(Tracking, Mapping, PruneDiagnostics):
         mask = self.strategy.render_mask(MappingContext(self.keyframes.n_made, iteration, g, g.state, training))
         if mask is not None:
             op = op * mask
-        log_scales = g.log_scales
-        if self.cfg.isotropic:  # [N, 3], the three columns equal (SlamConfig.isotropic)
-            log_scales = log_scales.mean(-1, keepdim=True).expand(-1, 3)
         return rasterize(
             g.means,
-            log_scales,
+            drawn_log_scales(g.log_scales, self.cfg.isotropic),
             g.quats,
             op,
             g.colors,
