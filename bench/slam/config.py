@@ -134,6 +134,11 @@ class SlamConfig:
     # iterations over all keyframes once the drive is over (System.refine), timed apart from the
     # SLAM loop and not in fps; 0 = evaluate the map exactly as mapping left it
     refine_iters: int = setting(0, "int", lo=0)
+    # every learning rate of the final refinement decays exponentially from its mapping value to this fraction
+    # of it at the last iteration; 1 = constant (as mapping). Why: at a constant rate each step fits the one view
+    # drawn, and the map hovers at that noise instead of settling between the views (3DGS decays its position
+    # rate over training for the same reason). Mapping's rates are restored after the refinement.
+    refine_lr_final: float = setting(1.0, "float", lo=0.0, hi=1.0, lo_open=True)
     kf_every: int = setting(3, "int", lo=1)  # a keyframe at least every N frames
     kf_min_trans_m: float = 3.0  # ... or once the camera moved this far since the last one
     kf_min_rot_deg: float = 15.0  # ... or turned this much

@@ -146,7 +146,20 @@ class Mapping(SystemState):
                 on_step()  # iteration it-1 is done
             return self._rng.choice(self.keyframes)  # those held (slam.keyframes.window)
 
-        self._optimize(self.keyframes.n_made - 1, iters, pick)
+        opt = self.map.optimizer
+        base = [g["lr"] for g in opt.param_groups]
+        decay = self.cfg.refine_lr_final ** (1.0 / max(1, iters - 1))
+
+        def pick_decayed(it: int) -> Keyframe:
+            for g, lr in zip(opt.param_groups, base, strict=True):
+                g["lr"] = lr * decay**it
+            return pick(it)
+
+        try:
+            self._optimize(self.keyframes.n_made - 1, iters, pick if self.cfg.refine_lr_final == 1.0 else pick_decayed)
+        finally:
+            for g, lr in zip(opt.param_groups, base, strict=True):
+                g["lr"] = lr
         if on_step is not None:
             on_step()
 

@@ -11,6 +11,7 @@ from bench.slam.config import SlamConfig
         ({"tracking_iters": 0}, "slam.tracking_iters: expected an integer >= 1, found 0"),
         ({"kf_every": 0}, "slam.kf_every: expected an integer >= 1, found 0"),
         ({"refine_iters": -1}, "slam.refine_iters: expected an integer >= 0, found -1"),
+        ({"refine_lr_final": 0.0}, r"slam.refine_lr_final: expected a number in \(0, 1\], found 0.0"),
         ({"mapping_window": 0}, "slam.mapping_window: expected an integer >= 1 or null, found 0"),
         ({"tracking_mask": "fixed"}, "slam.tracking_mask: expected one of current, init, found 'fixed'"),
         ({"densify_err_median": "all"}, "slam.densify_err_median: expected one of confident, image, found 'all'"),

@@ -151,3 +151,21 @@ def test_faithful_preset_changes_only_what_it_names():
     changed = {k for k in vars(default) if getattr(default, k) != getattr(faithful, k)}
     assert changed == {"name", "densify_stride", "lambda_ssim_map", "feature_weight"}
     assert (faithful.densify_stride, faithful.lambda_ssim_map, faithful.feature_weight) == (1, 0.2, 2.0)
+
+
+def test_faithful_fit_preset_is_the_faithful_one_plus_what_it_names():
+    from bench.cli.entry import compose
+    from bench.cli.validate import validate
+
+    kitti = ["dataset=kitti", "dataset.root=/nowhere"]  # not the synthetic default, whose refine_iters is its own
+    faithful = validate(compose(["slam=faithful", *kitti])).config.slam
+    fit = validate(compose(["slam=faithful_fit", *kitti])).config.slam
+    changed = {k for k in vars(faithful) if getattr(faithful, k) != getattr(fit, k)}
+    assert changed == {"name", "kf_every", "raster_antialias", "refine_iters", "refine_lr_final"}
+    assert (fit.name, fit.kf_every, fit.raster_antialias, fit.refine_iters, fit.refine_lr_final) == (
+        "faithful_fit",
+        1,
+        True,
+        2000,
+        0.01,
+    )

@@ -62,6 +62,29 @@ def test_refine_fits_the_keyframes_better_without_adding_gaussians(seq):
     s.refine(0)  # a no-op, not an error
 
 
+def test_refine_decays_every_rate_to_its_final_fraction_and_restores_mapping_s(seq, monkeypatch):
+    s = _system(seq, kf_every=1, mapping_iters=1, refine_lr_final=0.01)
+    for i in range(2):
+        s.step(seq[i])
+    opt = s.map.optimizer
+    base = {g["name"]: g["lr"] for g in opt.param_groups}
+    seen: list[dict[str, float]] = []
+    step = opt.step
+
+    def spy(*a, **k):
+        seen.append({g["name"]: g["lr"] for g in opt.param_groups})
+        return step(*a, **k)
+
+    monkeypatch.setattr(opt, "step", spy)
+    s.refine(5)
+    assert len(seen) == 5
+    for name, lr in base.items():
+        assert seen[0][name] == pytest.approx(lr)
+        assert seen[-1][name] == pytest.approx(0.01 * lr)
+        assert seen[2][name] == pytest.approx(0.1 * lr)  # exponential: halfway in log
+    assert {g["name"]: g["lr"] for g in opt.param_groups} == base
+
+
 class _DropAll(Strategy):
     def after_mapping(self, ctx):
         return torch.zeros(len(ctx.gaussians), dtype=torch.bool, device=ctx.candidates.device)
