@@ -146,51 +146,47 @@ class Mapping(SystemState):
                 on_step()  # iteration it-1 is done
             return self._rng.choice(self.keyframes)  # those held (slam.keyframes.window)
 
-        opt = self.map.optimizer
-        base = [g["lr"] for g in opt.param_groups]
-        decay = self.cfg.refine_lr_final ** (1.0 / max(1, iters - 1))
-
-        def pick_decayed(it: int) -> Keyframe:
-            for g, lr in zip(opt.param_groups, base, strict=True):
-                g["lr"] = lr * decay**it
-            return pick(it)
-
-        try:
-            self._optimize(self.keyframes.n_made - 1, iters, pick if self.cfg.refine_lr_final == 1.0 else pick_decayed)
-        finally:
-            for g, lr in zip(opt.param_groups, base, strict=True):
-                g["lr"] = lr
+        self._optimize(self.keyframes.n_made - 1, iters, pick, lr_final=self.cfg.refine_lr_final)
         if on_step is not None:
             on_step()
 
-    def _optimize(self, kf_idx: int, iters: int, pick: Callable[[int], Keyframe]) -> None:
-        """Adam on the map parameters against L1 colour + lambda_d L1 depth of the picked keyframes."""
+    def _optimize(self, kf_idx: int, iters: int, pick: Callable[[int], Keyframe], lr_final: float = 1.0) -> None:
+        """Adam on the map parameters against L1 colour + lambda_d L1 depth of the picked keyframes; every rate
+        decayed exponentially to ``lr_final`` x its value by the last iteration, and restored afterwards."""
         cfg = self.cfg
         for p in self.map.params.values():
             p.requires_grad_(True)
         opt = self.map.optimizer
         if cfg.mapping_fresh_optimizer:
             opt.state.clear()
-        for it in range(iters):
-            kf = pick(it)
-            out = self.render(kf.w2c, training=True, iteration=it)
-            if self._map_grad2d and out.means2d.requires_grad:
-                out.means2d.retain_grad()
-            rgb, depth = kf.images()  # float32, read back from disk with residency=disk
-            color = (out.color - rgb).abs().mean()
-            if cfg.lambda_ssim_map > 0:
-                color = (1 - cfg.lambda_ssim_map) * color + cfg.lambda_ssim_map * dssim(out.color, rgb)
-            loss = color + cfg.lambda_depth_map * self._depth_l1(out, depth)
-            extra = self.strategy.mapping_loss(MappingContext(kf_idx, it, self.map, self.map.state, True))
-            if extra is not None:
-                loss = loss + extra
-            if not loss.requires_grad:  # no live Gaussian in the view (slam.residency): nothing to step
-                continue
+        base = [g["lr"] for g in opt.param_groups]
+        decay = lr_final ** (1.0 / max(1, iters - 1))  # per iteration, as tracking_lr_final in tracking
+        try:
+            for it in range(iters):
+                for g, lr in zip(opt.param_groups, base, strict=True):
+                    g["lr"] = lr * decay**it  # decay 1: the rate itself
+                kf = pick(it)
+                out = self.render(kf.w2c, training=True, iteration=it)
+                if self._map_grad2d and out.means2d.requires_grad:
+                    out.means2d.retain_grad()
+                rgb, depth = kf.images()  # float32, read back from disk with residency=disk
+                color = (out.color - rgb).abs().mean()
+                if cfg.lambda_ssim_map > 0:
+                    color = (1 - cfg.lambda_ssim_map) * color + cfg.lambda_ssim_map * dssim(out.color, rgb)
+                loss = color + cfg.lambda_depth_map * self._depth_l1(out, depth)
+                extra = self.strategy.mapping_loss(MappingContext(kf_idx, it, self.map, self.map.state, True))
+                if extra is not None:
+                    loss = loss + extra
+                if not loss.requires_grad:  # no live Gaussian in the view (slam.residency): nothing to step
+                    continue
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                if self._map_grad2d and out.means2d.grad is not None:
+                    seen = (out.radius_px > 0).float()  # [N]
+                    self.map.state["_map_grad2d_sum"] += out.means2d.grad.detach().norm(dim=-1) * seen
+                    self.map.state["_map_grad2d_n"] += seen
+                opt.step()
             opt.zero_grad(set_to_none=True)
-            loss.backward()
-            if self._map_grad2d and out.means2d.grad is not None:
-                seen = (out.radius_px > 0).float()  # [N]
-                self.map.state["_map_grad2d_sum"] += out.means2d.grad.detach().norm(dim=-1) * seen
-                self.map.state["_map_grad2d_n"] += seen
-            opt.step()
-        opt.zero_grad(set_to_none=True)
+        finally:
+            for g, lr in zip(opt.param_groups, base, strict=True):
+                g["lr"] = lr
