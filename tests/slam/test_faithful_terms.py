@@ -161,10 +161,11 @@ def test_faithful_fit_preset_is_the_faithful_one_plus_what_it_names():
     faithful = validate(compose(["slam=faithful", *kitti])).config.slam
     fit = validate(compose(["slam=faithful_fit", *kitti])).config.slam
     changed = {k for k in vars(faithful) if getattr(faithful, k) != getattr(fit, k)}
-    assert changed == {"name", "kf_every", "raster_antialias", "refine_iters", "refine_lr_final"}
-    assert (fit.name, fit.kf_every, fit.raster_antialias, fit.refine_iters, fit.refine_lr_final) == (
+    assert changed == {"name", "kf_every", "mapping_iters", "raster_antialias", "refine_iters", "refine_lr_final"}
+    assert (fit.name, fit.kf_every, fit.mapping_iters, fit.raster_antialias, fit.refine_iters, fit.refine_lr_final) == (
         "faithful_fit",
         1,
+        150,
         True,
         2000,
         0.01,
