@@ -29,16 +29,33 @@ def _window(probe: MemoryProbe, alloc_mib: int = 0, hold_s: float = 0.0) -> dict
     return probe.end_window()
 
 
+def _mmap_window(probe: MemoryProbe, alloc_mib: int, hold_s: float) -> dict[str, float | None]:
+    """A window holding fresh anonymous pages: unlike a malloc'd tensor, they cannot reuse memory an
+    earlier test freed but the allocator kept resident (seen in CI: a 200 MiB tensor moved RSS by 0)."""
+    probe.start_window()
+    blob = mmap.mmap(-1, alloc_mib * 2**20)
+    blob.write(b"\x01" * len(blob))  # touched, so resident
+    time.sleep(hold_s)
+    blob.close()  # munmap: RSS drops at once
+    return probe.end_window()
+
+
 def _check_big_window_rises(probe: MemoryProbe, rss_resets: bool) -> None:
+    """The tensor window checks the torch-live peak; RSS is checked on fresh mmap pages, because a
+    malloc'd tensor may reuse pages an earlier test freed but the allocator kept resident (seen in
+    CI twice: a 200 MiB tensor moved RSS by 0 once the suite had run long enough)."""
     empty = _window(probe)
     big = _window(probe, BIG_MIB, hold_s=0.03)
     after = _window(probe)
     assert big["torch_live_peak_mib"] - empty["torch_live_peak_mib"] >= 190
     assert after["torch_live_peak_mib"] < empty["torch_live_peak_mib"] + 10
+    assert big["cuda_alloc_peak_mib"] is None and big["cuda_reserved_peak_mib"] is None
+    empty = _window(probe)
+    big = _mmap_window(probe, BIG_MIB, hold_s=0.03)
+    after = _window(probe)
     assert big["cpu_rss_peak_mib"] - empty["cpu_rss_peak_mib"] >= 190
     if rss_resets:
         assert after["cpu_rss_peak_mib"] < big["cpu_rss_peak_mib"] - 150
-    assert big["cuda_alloc_peak_mib"] is None and big["cuda_reserved_peak_mib"] is None
 
 
 @pytest.mark.parametrize("method", ["profiler-memory", "dispatch-mode"])
@@ -72,17 +89,6 @@ def test_autograd_buffers_are_counted(method: str) -> None:
         loss.backward()
         peak = probe.end_window()["torch_live_peak_mib"]
     assert 8 <= peak <= 40
-
-
-def _mmap_window(probe: MemoryProbe, alloc_mib: int, hold_s: float) -> dict[str, float | None]:
-    """A window holding fresh anonymous pages: unlike a malloc'd tensor, they cannot reuse memory an
-    earlier test freed but the allocator kept resident (seen in CI: a 200 MiB tensor moved RSS by 0)."""
-    probe.start_window()
-    blob = mmap.mmap(-1, alloc_mib * 2**20)
-    blob.write(b"\x01" * len(blob))  # touched, so resident
-    time.sleep(hold_s)
-    blob.close()  # munmap: RSS drops at once
-    return probe.end_window()
 
 
 def test_rss_falls_back_to_sampler(monkeypatch: pytest.MonkeyPatch) -> None:
