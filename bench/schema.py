@@ -156,6 +156,11 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
     Field("kf_psnr_depth_db", "dB", "... PSNR over the pixels with observed depth (those a map can seed)"),
     Field("kf_psnr_nodepth_db", "dB", "... PSNR over the pixels without depth (sky, no disparity); null if none"),
     Field("kf_depth_frac", "", "share of the keyframe's pixels with observed depth"),
+    Field(
+        "kf_map_iters",
+        "",
+        "mapping iterations the keyframe got: `slam.mapping_iters`, more under `slam.mapping_fit_psnr_db`",
+    ),
 )
 FIT_COLUMNS: tuple[str, ...] = ("kf_psnr_db", "kf_psnr_depth_db", "kf_psnr_nodepth_db", "kf_depth_frac")
 # a row's image metrics: the map as it was when the row was taken, under eval.protocol

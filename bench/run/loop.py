@@ -261,6 +261,7 @@ def keyframe_row(parts: RunSetup, res: FrameResult, frame_index: int, between: d
         **{k: diag.get(k) for k in schema.SCORE_VIEW_COLUMNS},
         "diag_s": round(res.diag_s + between["diag_s"], 4),
         **{k: _round(diag.get(k)) for k in schema.FIT_COLUMNS},
+        "kf_map_iters": diag.get("kf_map_iters"),
     }
 
 

@@ -116,6 +116,14 @@ class SlamConfig:
     # fitted to one view is wrong from the next; a sphere is the same from every view.
     isotropic: bool = False
     mapping_iters: int = setting(100, "int", lo=0)  # paper: 100 per keyframe
+    # keep fitting past mapping_iters, mapping_fit_step iterations at a time, while the new keyframe's own render
+    # scores below this PSNR over its pixels with observed depth (keyframes.csv kf_psnr_depth_db, the same
+    # figure), up to mapping_fit_max_iters in all; None = exactly mapping_iters (the paper). Why: a fixed count
+    # is set by the slowest view, and pays it on every keyframe; this pays it on the slow ones only (figures in
+    # reports/fidelity/README.md). The iterations each keyframe got are keyframes.csv kf_map_iters.
+    mapping_fit_psnr_db: float | None = setting(None, "float", lo=0.0, lo_open=True, nullable=True)
+    mapping_fit_step: int = setting(25, "int", lo=1)
+    mapping_fit_max_iters: int = setting(300, "int", lo=0)
     # when keyframes get those iterations: "keyframes" = every keyframe (the paper's text); "first" = the
     # first keyframe only, later keyframes only densify (and prune), as the released Pocket-SLAM code
     # does (`if time_idx < 1` around its mapping loop; +experiment=released)
@@ -194,3 +202,8 @@ class SlamConfig:
         self.densify = as_config(DensifyConfig, self.densify, "slam.densify")
         self.keyframes = as_config(KeyframeStoreConfig, self.keyframes, "slam.keyframes")
         self.residency = as_config(ResidencyConfig, self.residency, "slam.residency")
+        if self.mapping_fit_psnr_db is not None and self.mapping_fit_max_iters < self.mapping_iters:
+            raise ConfigError(
+                f"slam.mapping_fit_max_iters: expected at least slam.mapping_iters ({self.mapping_iters}) "
+                f"when slam.mapping_fit_psnr_db is set, found {self.mapping_fit_max_iters}"
+            )

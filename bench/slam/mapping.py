@@ -10,6 +10,7 @@ import torch
 from bench.slam.densify import cap_keep, pick_seeds, seed_budget
 from bench.slam.keyframes import Keyframe
 from bench.slam.losses import dssim
+from bench.slam.prune_diagnostics import own_fit
 from bench.slam.se3 import inverse
 from bench.slam.strategy import MappingContext
 from bench.slam.system_state import SystemState
@@ -110,9 +111,10 @@ class Mapping(SystemState):
             score = self.map.opacities.detach()
         return score
 
-    def _map(self, kf_idx: int) -> int:
+    def _map(self, kf_idx: int, own: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None) -> int:
         """Optimise the map over the keyframe window; the iterations run (none after the first
-        keyframe with ``mapping_schedule=first``)."""
+        keyframe with ``mapping_schedule=first``). ``own`` is the new keyframe as observed (rgb [H, W, 3],
+        depth [H, W], w2c [4, 4]), which ``slam.mapping_fit_psnr_db`` scores between its extra steps."""
         cfg = self.cfg
         if cfg.mapping_schedule == "first" and kf_idx > 0:
             return 0
@@ -127,8 +129,19 @@ class Mapping(SystemState):
                 return self._rng.choice(window)
             return window[0] if it % 2 == 0 or len(window) == 1 else self._rng.choice(window[1:])
 
-        self._optimize(kf_idx, cfg.mapping_iters, pick)
-        return cfg.mapping_iters
+        n = cfg.mapping_iters
+        self._optimize(kf_idx, n, pick)
+        if cfg.mapping_fit_psnr_db is None or own is None:
+            return n
+        while n < cfg.mapping_fit_max_iters:
+            with torch.no_grad():
+                psnr = own_fit(self.render(own[2]).color, own[0], own[1])["kf_psnr_depth_db"]
+            if psnr is None or psnr >= cfg.mapping_fit_psnr_db:  # no pixel with depth: nothing to reach
+                break
+            step = min(cfg.mapping_fit_step, cfg.mapping_fit_max_iters - n)
+            self._optimize(kf_idx, step, pick, start=n)  # the same run of iterations, continued
+            n += step
+        return n
 
     def refine(self, iters: int, on_step: Callable[[], None] | None = None) -> None:
         """Optimise the finished map over every keyframe, sampled uniformly.
@@ -150,21 +163,24 @@ class Mapping(SystemState):
         if on_step is not None:
             on_step()
 
-    def _optimize(self, kf_idx: int, iters: int, pick: Callable[[int], Keyframe], lr_final: float = 1.0) -> None:
+    def _optimize(
+        self, kf_idx: int, iters: int, pick: Callable[[int], Keyframe], lr_final: float = 1.0, start: int = 0
+    ) -> None:
         """Adam on the map parameters against L1 colour + lambda_d L1 depth of the picked keyframes; every rate
-        decayed exponentially to ``lr_final`` x its value by the last iteration, and restored afterwards."""
+        decayed exponentially to ``lr_final`` x its value by the last iteration, and restored afterwards.
+        ``start`` > 0 continues a run of iterations (numbered from it, Adam's moments kept)."""
         cfg = self.cfg
         for p in self.map.params.values():
             p.requires_grad_(True)
         opt = self.map.optimizer
-        if cfg.mapping_fresh_optimizer:
+        if cfg.mapping_fresh_optimizer and start == 0:
             opt.state.clear()
         base = [g["lr"] for g in opt.param_groups]
         decay = lr_final ** (1.0 / max(1, iters - 1))  # per iteration, as tracking_lr_final in tracking
         try:
-            for it in range(iters):
+            for it in range(start, start + iters):
                 for g, lr in zip(opt.param_groups, base, strict=True):
-                    g["lr"] = lr * decay**it  # decay 1: the rate itself
+                    g["lr"] = lr * decay ** (it - start)  # decay 1: the rate itself
                 kf = pick(it)
                 out = self.render(kf.w2c, training=True, iteration=it)
                 if self._map_grad2d and out.means2d.requires_grad:

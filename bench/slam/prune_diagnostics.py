@@ -14,21 +14,28 @@ from bench.slam.system_state import SystemState
 REDUNDANT_WEIGHT = 0.05  # a candidate whose blending weight never exceeds this is redundant (reports/fidelity)
 
 
+def own_fit(color: torch.Tensor, rgb: torch.Tensor, depth: torch.Tensor) -> dict[str, float | None]:
+    """A keyframe's render ``color`` [H, W, 3] against its image ``rgb`` [H, W, 3]: PSNR over the whole image,
+    over the pixels with observed ``depth`` [H, W] (which a map seeds) and over those without (which only
+    neighbouring Gaussians can cover), and the share with depth. The split says where a map's decibels are
+    lost; ``slam.mapping_fit_psnr_db`` reads the same figure, so a keyframe row shows what mapping stopped at."""
+    sq = (color.clamp(0, 1) - rgb).pow(2).mean(-1)  # [H, W]
+    has_depth = depth > 0  # [H, W]
+    return {
+        "kf_psnr_db": region_psnr_db(sq),
+        "kf_psnr_depth_db": region_psnr_db(sq, has_depth),
+        "kf_psnr_nodepth_db": region_psnr_db(sq, ~has_depth),
+        "kf_depth_frac": float(has_depth.float().mean()),
+    }
+
+
 class PruneDiagnostics(SystemState):
     """The diagnostics half of ``System`` (mixed into it): read-only renders of the system's map."""
 
     @torch.no_grad()
     def _fit_diagnostics(self, diag: dict, rgb: torch.Tensor, depth: torch.Tensor, w2c: torch.Tensor) -> None:
-        """How well mapping fitted the keyframe it just mapped: PSNR of its own render over the whole image,
-        over the pixels with observed depth (which a map seeds) and over those without (which only
-        neighbouring Gaussians can cover). The split says where a map's decibels are lost."""
-        out = self.render(w2c)
-        sq = (out.color.clamp(0, 1) - rgb).pow(2).mean(-1)  # [H, W]
-        has_depth = depth > 0  # [H, W]
-        diag["kf_psnr_db"] = region_psnr_db(sq)
-        diag["kf_psnr_depth_db"] = region_psnr_db(sq, has_depth)
-        diag["kf_psnr_nodepth_db"] = region_psnr_db(sq, ~has_depth)
-        diag["kf_depth_frac"] = float(has_depth.float().mean())
+        """How well mapping fitted the keyframe it just mapped (``own_fit`` of its own render)."""
+        diag.update(own_fit(self.render(w2c).color, rgb, depth))
 
     @torch.no_grad()
     def _prune_diagnostics(

@@ -241,7 +241,8 @@ class System(Tracking, Mapping, PruneDiagnostics):
                 result.diag["n_reseeded_holes"] = self._reseeded
                 result.diag["n_densify_dropped"] = self._densify_dropped
                 result.diag["n_cap_removed"] = self._cap_removed
-                mapped = self._map(kf_idx)
+                mapped = self._map(kf_idx, (rgb, depth, w2c))
+                result.diag["kf_map_iters"] = mapped
             t_fit = time.perf_counter()
             self._fit_diagnostics(result.diag, rgb, depth, w2c)
             result.diag_s += time.perf_counter() - t_fit

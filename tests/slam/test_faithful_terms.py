@@ -161,12 +161,50 @@ def test_faithful_fit_preset_is_the_faithful_one_plus_what_it_names():
     faithful = validate(compose(["slam=faithful", *kitti])).config.slam
     fit = validate(compose(["slam=faithful_fit", *kitti])).config.slam
     changed = {k for k in vars(faithful) if getattr(faithful, k) != getattr(fit, k)}
-    assert changed == {"name", "kf_every", "mapping_iters", "raster_antialias", "refine_iters", "refine_lr_final"}
+    assert changed == {
+        "name", "kf_every", "mapping_iters", "mapping_fit_psnr_db", "raster_antialias", "refine_iters",
+        "refine_lr_final",
+    }  # fmt: skip
     assert (fit.name, fit.kf_every, fit.mapping_iters, fit.raster_antialias, fit.refine_iters, fit.refine_lr_final) == (
         "faithful_fit",
         1,
         150,
         True,
-        2000,
+        1000,
         0.01,
     )
+    assert (fit.mapping_fit_psnr_db, fit.mapping_fit_max_iters) == (30.0, 300)
+
+
+def test_a_keyframe_below_the_fit_target_gets_more_iterations_up_to_the_cap(seq):
+    """An unreachable target runs to the cap in whole steps; the row records the iterations run."""
+    s = _system(seq, mapping_iters=2, mapping_fit_psnr_db=99.0, mapping_fit_step=3, mapping_fit_max_iters=7)
+    d = s.step(seq[0]).diag
+    assert d["kf_map_iters"] == 7  # 2, then 3, then the 2 left to the cap
+    assert d["kf_psnr_depth_db"] < 99.0
+
+
+def test_a_reached_fit_target_stops_where_it_is_reached(seq):
+    """A target below what the first iterations reach adds none: the run is the fixed-count run, bit for bit."""
+    fixed = _system(seq, mapping_iters=4)
+    target = _system(seq, mapping_iters=4, mapping_fit_psnr_db=1.0, mapping_fit_max_iters=50)
+    d_fixed, d_target = fixed.step(seq[0]).diag, target.step(seq[0]).diag
+    assert d_fixed["kf_map_iters"] == d_target["kf_map_iters"] == 4
+    for k, p in fixed.map.params.items():
+        assert torch.equal(p, target.map.params[k])
+
+
+def test_extra_fit_steps_continue_the_run_not_restart_it(seq):
+    """4 + 3 + 3 iterations under a target never reached leave the map exactly as 10 iterations in one run:
+    Adam's moments are kept and the iterations numbered on (a restart would reset the moments)."""
+    one = _system(seq, mapping_iters=10)
+    steps = _system(seq, mapping_iters=4, mapping_fit_psnr_db=99.0, mapping_fit_step=3, mapping_fit_max_iters=10)
+    one.step(seq[0])
+    assert steps.step(seq[0]).diag["kf_map_iters"] == 10
+    for k, p in one.map.params.items():
+        assert torch.equal(p, steps.map.params[k]), k
+
+
+def test_a_fit_cap_below_the_fixed_count_is_a_one_line_error():
+    with pytest.raises(ConfigError, match=r"slam.mapping_fit_max_iters: expected at least slam.mapping_iters \(150\)"):
+        SlamConfig(mapping_iters=150, mapping_fit_psnr_db=30.0, mapping_fit_max_iters=100)
