@@ -162,13 +162,12 @@ def test_faithful_fit_preset_is_the_faithful_one_plus_what_it_names():
     fit = validate(compose(["slam=faithful_fit", *kitti])).config.slam
     changed = {k for k in vars(faithful) if getattr(faithful, k) != getattr(fit, k)}
     assert changed == {
-        "name", "kf_every", "mapping_iters", "mapping_fit_psnr_db", "raster_antialias", "refine_iters",
-        "refine_lr_final",
+        "name", "kf_every", "mapping_fit_psnr_db", "raster_antialias", "refine_iters", "refine_lr_final",
     }  # fmt: skip
     assert (fit.name, fit.kf_every, fit.mapping_iters, fit.raster_antialias, fit.refine_iters, fit.refine_lr_final) == (
         "faithful_fit",
         1,
-        150,
+        100,
         True,
         1000,
         0.01,
