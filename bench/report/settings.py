@@ -19,8 +19,8 @@ CONFIG_FILE = "config.yaml"  # written by bench.run.lifecycle next to metrics.js
 # name in runs.csv is the dotted key itself, so a reader can paste it back as an override.
 SETTING_KEYS: tuple[str, ...] = (
     "slam.raster_backend", "slam.raster_antialias", "slam.isotropic", "slam.tracking_iters", "slam.mapping_iters",
-    "slam.mapping_schedule", "slam.mapping_draw", "slam.kf_every", "slam.refine_iters", "slam.refine_lr_final",
-    "slam.densify_silhouette", "slam.densify_stride", "slam.init_opacity",
+    "slam.mapping_fit_psnr_db", "slam.mapping_schedule", "slam.mapping_draw", "slam.kf_every", "slam.refine_iters",
+    "slam.refine_lr_final", "slam.densify_silhouette", "slam.densify_stride", "slam.init_opacity",
     "prune.target", "prune.n_target", "prune.every", "prune.grad_source",
     "dataset.downscale", "dataset.width", "dataset.height", "dataset.n_frames", "dataset.first", "dataset.last",
     "dataset.stride", "dataset.route", "dataset.route_file",
