@@ -111,13 +111,17 @@ class Mapping(SystemState):
             score = self.map.opacities.detach()
         return score
 
-    def _map(self, kf_idx: int, own: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None) -> int:
+    def _map(
+        self, kf_idx: int, own: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
+    ) -> tuple[int, dict[str, float | None] | None]:
         """Optimise the map over the keyframe window; the iterations run (none after the first
-        keyframe with ``mapping_schedule=first``). ``own`` is the new keyframe as observed (rgb [H, W, 3],
-        depth [H, W], w2c [4, 4]), which ``slam.mapping_fit_psnr_db`` scores between its extra steps."""
+        keyframe with ``mapping_schedule=first``), and ``own_fit`` of the map as it is left when the last
+        thing done was to score it (None otherwise), so the keyframe row need not render it again.
+        ``own`` is the new keyframe as observed (rgb [H, W, 3], depth [H, W], w2c [4, 4]), which
+        ``slam.mapping_fit_psnr_db`` scores between its extra steps."""
         cfg = self.cfg
         if cfg.mapping_schedule == "first" and kf_idx > 0:
-            return 0
+            return 0, None
         # the newest keyframes first; older ones keep the views of the early drive from being
         # overwritten by later close-ups (see mapping_window); drawn from the keyframes held (slam.keyframes.window)
         window = self.keyframes[::-1][: cfg.mapping_window or len(self.keyframes)]
@@ -132,16 +136,17 @@ class Mapping(SystemState):
         n = cfg.mapping_iters
         self._optimize(kf_idx, n, pick)
         if cfg.mapping_fit_psnr_db is None or own is None:
-            return n
+            return n, None
         while n < cfg.mapping_fit_max_iters:
             with torch.no_grad():
-                psnr = own_fit(self.render(own[2]).color, own[0], own[1])["kf_psnr_depth_db"]
+                fit = own_fit(self.render(own[2]).color, own[0], own[1])
+            psnr = fit["kf_psnr_depth_db"]
             if psnr is None or psnr >= cfg.mapping_fit_psnr_db:  # no pixel with depth: nothing to reach
-                break
+                return n, fit
             step = min(cfg.mapping_fit_step, cfg.mapping_fit_max_iters - n)
             self._optimize(kf_idx, step, pick, start=n)  # the same run of iterations, continued
             n += step
-        return n
+        return n, None  # at the cap: the map changed since it was last scored
 
     def refine(self, iters: int, on_step: Callable[[], None] | None = None) -> None:
         """Optimise the finished map over every keyframe, sampled uniformly.

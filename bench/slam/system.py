@@ -241,10 +241,13 @@ class System(Tracking, Mapping, PruneDiagnostics):
                 result.diag["n_reseeded_holes"] = self._reseeded
                 result.diag["n_densify_dropped"] = self._densify_dropped
                 result.diag["n_cap_removed"] = self._cap_removed
-                mapped = self._map(kf_idx, (rgb, depth, w2c))
+                mapped, fit = self._map(kf_idx, (rgb, depth, w2c))
                 result.diag["kf_map_iters"] = mapped
             t_fit = time.perf_counter()
-            self._fit_diagnostics(result.diag, rgb, depth, w2c)
+            if fit is None:
+                self._fit_diagnostics(result.diag, rgb, depth, w2c)
+            else:  # mapping's top-up scored the map as it stands: the same figures, not rendered twice
+                result.diag.update(fit)
             result.diag_s += time.perf_counter() - t_fit
             # the map at its largest in the window: after densification, with Adam's moments and
             # (as during each mapping step) a gradient for every parameter

@@ -191,6 +191,8 @@ def test_a_reached_fit_target_stops_where_it_is_reached(seq):
     assert d_fixed["kf_map_iters"] == d_target["kf_map_iters"] == 4
     for k, p in fixed.map.params.items():
         assert torch.equal(p, target.map.params[k])
+    for k in ("kf_psnr_db", "kf_psnr_depth_db", "kf_psnr_nodepth_db", "kf_depth_frac"):
+        assert d_target[k] == d_fixed[k], k  # the top-up's own score, reused, is the row's own render's
 
 
 def test_extra_fit_steps_continue_the_run_not_restart_it(seq):
