@@ -26,7 +26,7 @@ TINY = [
 ]
 
 
-def _run(tmp_path, name, extra):
+def run_tiny(tmp_path, name, extra):
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = compose(config_name="config", overrides=[*TINY, *extra])
     result = run(cfg, out_dir=tmp_path / name)
@@ -36,8 +36,8 @@ def _run(tmp_path, name, extra):
 
 @pytest.mark.slow
 def test_pruning_pictures_match_the_prune_and_leave_the_run_alone(tmp_path):
-    plain = _run(tmp_path, "plain", [])
-    shown = _run(tmp_path, "viz", ["viz.pruning=true", "viz.every=1"])
+    plain = run_tiny(tmp_path, "plain", [])
+    shown = run_tiny(tmp_path, "viz", ["viz.pruning=true", "viz.every=1"])
     assert not list(plain.glob("pruned_kf*"))  # off by default
     rows = {int(r["kf"]): r for r in csv.DictReader(open(shown / "keyframes.csv"))}
     npzs = sorted(shown.glob("pruned_kf*.npz"))

@@ -154,6 +154,10 @@ _PRECHECKED: list[ValidatedRun] = []
 
 
 def main() -> int:
+    if sys.argv[1:2] == ["view"]:  # a subcommand, not a run: the viewer (bench.viewer), never imported by a run
+        from bench.viewer.cli import main as view
+
+        return view(sys.argv[2:])
     try:
         check_overrides(sys.argv[1:])
         built = precheck(sys.argv[1:])

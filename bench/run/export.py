@@ -108,6 +108,17 @@ def snapshot_keyframes(run_dir: Path) -> list[int]:
     return sorted(found)
 
 
+def read_snapshot(path: Path) -> dict[str, np.ndarray]:
+    """A ``maps/kf_NNN.npz`` snapshot's ``PARAMS`` arrays (float32); a ``ConfigError`` line for a truncated or
+    corrupt file."""
+    try:
+        with np.load(path) as data:
+            return {k: np.asarray(data[k], dtype=np.float32) for k in PARAMS}
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as exc:  # truncated, corrupt
+        found = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ConfigError(f"expected '{path}' to hold the arrays {', '.join(PARAMS)}, found: {found}") from None
+
+
 def export_keyframe(run_dir: Path, keyframe: int, out: Path | None = None) -> Path:
     """Turn the snapshot of ``keyframe`` into a PLY (default ``RUN_DIR/map_kfNNN.ply``)."""
     run_dir = Path(run_dir)
@@ -124,12 +135,7 @@ def export_keyframe(run_dir: Path, keyframe: int, out: Path | None = None) -> Pa
     target = Path(out) if out is not None else run_dir / f"map_kf{keyframe:03d}.ply"
     if target.is_dir():
         raise ConfigError(f"--out: expected a PLY file path, found the directory '{target}'")
-    try:
-        with np.load(path) as data:
-            arrays = {k: np.asarray(data[k], dtype=np.float32) for k in PARAMS}
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as exc:  # truncated, corrupt
-        found = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ConfigError(f"expected '{path}' to hold the arrays {', '.join(PARAMS)}, found: {found}") from None
+    arrays = read_snapshot(path)
     try:
         return write_ply(target, arrays)
     except OSError as exc:

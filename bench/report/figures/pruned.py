@@ -22,7 +22,7 @@ from bench.report.tables import Variant, variant_runs, variants
 PRUNED_GLOB = viz.PRUNED_GLOB
 
 
-def _pruned_records(run_dir: Path, warn: Warn) -> dict[int, Path]:
+def pruned_records(run_dir: Path, warn: Warn) -> dict[int, Path]:
     """keyframe -> pruned_kfNNN.npz written by a run with viz.pruning=true."""
     found: dict[int, Path] = {}
     for path in sorted(Path(run_dir).glob(PRUNED_GLOB)):
@@ -53,7 +53,7 @@ def plot_pruned(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: War
         shown: list[tuple[Variant, dict[int, Path]]] = []
         for variant in panel.variants:
             run = representative(variant_runs(one, variant))
-            records = {} if run is None else _pruned_records(Path(run["path"]), warn)
+            records = {} if run is None else pruned_records(Path(run["path"]), warn)
             if records:
                 shown.append((variant, records))
         common = set.intersection(*(set(r) for _, r in shown)) if shown else set()

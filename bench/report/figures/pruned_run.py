@@ -2,7 +2,7 @@
 
 At keyframes ``every``, ``2 every``, ... the prune's inputs and outputs are kept in
 ``pruned_kfNNN.npz`` (the keyframe image, the render before and after the prune, the pruned
-Gaussians' projected centres and their coverage C_i), and ``draw_all`` turns each into
+Gaussians' projected centres, their world positions and their coverage C_i), and ``draw_all`` turns each into
 ``pruned_kfNNN.png`` once the run is over. The report reads the npz files to put strategies side
 by side on one keyframe (``bench.report.figures.pruned.plot_pruned``). The extra render per shown keyframe
 runs inside the SLAM loop, so a run with viz on is not one to take FPS or peak memory from.
@@ -28,6 +28,15 @@ CMAP = "viridis"
 def _u8(image: torch.Tensor) -> np.ndarray:
     """[H, W, 3] float in [0, 1] -> uint8 (the pictures need no more, and the npz stays small)."""
     return (image.detach().clamp(0, 1) * 255.0 + 0.5).to(torch.uint8).cpu().numpy()
+
+
+def unproject(uv: torch.Tensor, z: torch.Tensor, w2c: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
+    """World points [P, 3] m whose pinhole projection (``bench.slam.raster.project``) at ``w2c`` [4, 4] and ``K``
+    [3, 3] is ``uv`` [P, 2] px at camera depth ``z`` [P] m: a pruned Gaussian's centre, for the 3D viewer."""
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    cam = torch.stack([(uv[:, 0] - cx) * z / fx, (uv[:, 1] - cy) * z / fy, z], -1)  # [P, 3] camera frame
+    R, t = w2c[:3, :3], w2c[:3, 3]
+    return (cam - t) @ R  # R^T (cam - t), row by row
 
 
 def caption_psnr_db(a: np.ndarray, b: np.ndarray) -> float:
@@ -63,6 +72,8 @@ class PruneViz:
             before=_u8(before.color),
             after=_u8(after),
             uv=uv[inside].cpu().numpy().astype(np.float32),
+            # [Q, 3] m, row for row with uv: the same Gaussians' centres in the world (python -m bench.view)
+            xyz=unproject(uv[inside], before.depths[pruned][inside], w2c, system.K).cpu().numpy().astype(np.float32),
             coverage=coverage[inside].cpu().numpy().astype(np.float32),
             n_pruned=int(pruned.sum()),
             n_before=int(len(pruned)),
