@@ -211,3 +211,25 @@ def test_a_snapshot_only_run_shows_its_last_snapshot(tmp_path):
     save_snapshot(run_dir, 1, random_map(6))
     scene = read_run(run_dir)
     assert len(scene.splats) == 6 and scene.steps == [0, 1] and scene.cameras == []
+
+
+@pytest.mark.slow
+def test_the_page_shows_the_map(tiny_run, tmp_path):
+    """Headless Chromium draws the served page: the map is there (pixels off the white background)."""
+    pytest.importorskip("viser")
+    from matplotlib.image import imread
+
+    from bench.viewer.screenshot import find_browser, screenshot
+    from bench.viewer.serve import Viewer
+
+    if find_browser() is None:
+        pytest.skip("no Chromium on PATH (apt-get install chromium): the page is not screenshotted")
+    viewer = Viewer([([tiny_run], tiny_run, 0)], port=0)
+    try:
+        png = screenshot(viewer.url, tmp_path / "page.png", wait_s=20.0, size=(1200, 800))
+    finally:
+        viewer.stop()
+    pixels = imread(png)[..., :3]  # [H, W, 3] in [0, 1]
+    scene = pixels[100:-100, 100:800]  # left of the GUI panel, clear of the corner axes
+    drawn = (scene < 0.9).any(axis=-1).mean()
+    assert drawn > 0.005, f"{drawn:.4f} of the scene's pixels off the background"

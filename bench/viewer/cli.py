@@ -44,6 +44,9 @@ def parse(argv: list[str] | None):
     parser.add_argument(
         "--run", action="append", default=None, metavar="N|TEXT", help="in a sweep dir, the run shown first (per path)"
     )
+    parser.add_argument(
+        "--keyframe", type=int, default=None, metavar="K", help="start at keyframe K's snapshot/prune (default: final)"
+    )
     args = parser.parse_args(argv)
     if len(args.run_dirs) > 2:
         parser.error(f"expected one or two run dirs, found {len(args.run_dirs)}")
@@ -74,6 +77,12 @@ def main(argv: list[str] | None = None) -> int:
         from bench.viewer.serve import Viewer
 
         viewer = Viewer(slots, host=args.host, port=args.port)
+        if args.keyframe is not None:
+            try:
+                viewer.show(args.keyframe)
+            except BenchError:
+                viewer.stop()
+                raise
     except BenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_ERROR

@@ -313,3 +313,13 @@ def side_by_side(a: RunScene, b: RunScene, gap: float = 0.1) -> np.ndarray:
     lo_b, _ = extent(b)
     width = float(hi_a[0] - lo_a[0])
     return np.array([hi_a[0] - lo_b[0] + gap * max(width, 1e-3), 0.0, 0.0], dtype=np.float32)
+
+
+def overview(bounds: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """(camera position [3], the point it looks at [3]) m that take in every (low, high) box of ``bounds``:
+    from behind the start (-z, the first camera looks along +z) and above it (-y: camera y points down)."""
+    lo = np.min([b[0] for b in bounds], axis=0)
+    hi = np.max([b[1] for b in bounds], axis=0)
+    centre = (lo + hi) / 2
+    span = max(float(np.max(hi - lo)), 1e-3)
+    return centre + np.array([0.0, -0.6, -0.9]) * span, centre

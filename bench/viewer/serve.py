@@ -18,7 +18,17 @@ from typing import Any
 import numpy as np
 
 from bench.errors import ConfigError
-from bench.viewer.scene import RunScene, Splats, load_snapshot, pruned_points, read_run, run_label, side_by_side
+from bench.viewer.scene import (
+    RunScene,
+    Splats,
+    extent,
+    load_snapshot,
+    overview,
+    pruned_points,
+    read_run,
+    run_label,
+    side_by_side,
+)
 
 INSTALL_HINT = 'install it with pip install -e ".[view]"'
 SLOTS = ("A", "B")
@@ -92,6 +102,18 @@ class Viewer:
         for slot in self.slots:
             self._draw(slot)
         self._layout()
+
+    def _aim(self) -> None:
+        """The camera a new page starts from (and "Reset View" returns to): every shown map in view."""
+        bounds = []
+        for slot in self.slots:
+            lo, hi = extent(slot.scene)
+            if slot.nodes["frame"].visible:
+                shift = np.asarray(slot.nodes["frame"].position)
+                bounds.append((lo + shift, hi + shift))
+        position, look_at = overview(bounds)
+        camera = self.server.initial_camera
+        camera.position, camera.look_at, camera.up = position, look_at, (0.0, -1.0, 0.0)
 
     @property
     def url(self) -> str:
@@ -203,7 +225,11 @@ class Viewer:
     def show(self, kf: int | None) -> None:
         """Step to keyframe ``kf`` (one of ``steps``), or the final map for None: what moving the slider does."""
         if kf is not None and kf not in self.steps:
-            raise ConfigError(f"expected one of the keyframes {self.steps}, found {kf}")
+            have = f"one of the keyframes {', '.join(map(str, self.steps))}" if self.steps else "no keyframe steps"
+            raise ConfigError(
+                f"--keyframe: expected {have} (snapshots: save_maps=every_keyframe; prunes: viz.pruning=true), "
+                f"found {kf}"
+            )
         self.step_slider.value = len(self.steps) if kf is None else self.steps.index(kf)  # its on_update draws
 
     def _show_step(self, only: Slot | None = None) -> None:
@@ -244,13 +270,14 @@ class Viewer:
                     handle.visible = self.show_kf.value
 
     def _layout(self) -> None:
-        if len(self.slots) < 2:
-            return
-        a, b = self.slots
-        choice = self.layout.value if self.layout is not None else "side by side"
-        a.nodes["frame"].visible = choice != "B only"
-        b.nodes["frame"].visible = choice != "A only"
-        b.nodes["frame"].position = side_by_side(a.scene, b.scene) if choice == "side by side" else np.zeros(3)
+        """Two runs: B beside A, or one of them alone at the origin; then the camera takes in what shows."""
+        if len(self.slots) == 2:
+            a, b = self.slots
+            choice = self.layout.value if self.layout is not None else "side by side"
+            a.nodes["frame"].visible = choice != "B only"
+            b.nodes["frame"].visible = choice != "A only"
+            b.nodes["frame"].position = side_by_side(a.scene, b.scene) if choice == "side by side" else np.zeros(3)
+        self._aim()
 
     def stop(self) -> None:
         self.server.stop()
