@@ -4,6 +4,7 @@ command's bad input, and the viser server on a tiny real run, checked through vi
 from __future__ import annotations
 
 import json
+import signal
 import socket
 import subprocess
 import sys
@@ -121,6 +122,28 @@ def test_a_sweep_lists_its_runs_and_run_picks_one(tmp_path, capsys):
     for choice, expected in bad.items():
         with pytest.raises(ConfigError, match=f"^--run: .*{expected}$"):
             cli.plan([sweep], [choice])
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_the_viewer_cleanly(tiny_run):
+    pytest.importorskip("viser")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "bench.view", str(tiny_run), "--port", "0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        while line and not line.startswith("serving"):  # viser's own banner comes first
+            line = proc.stdout.readline()
+        assert line.startswith("serving pocket") and "http://127.0.0.1:" in line, line
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0 and "Traceback" not in err, err
 
 
 def test_a_run_does_not_import_the_viewer():

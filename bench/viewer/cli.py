@@ -86,8 +86,8 @@ def main(argv: list[str] | None = None) -> int:
     except BenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_ERROR
-    print(f"serving {', '.join(s.scene.label for s in viewer.slots)} at {viewer.url} (Ctrl-C stops)", flush=True)
     try:
+        print(f"serving {', '.join(s.scene.label for s in viewer.slots)} at {viewer.url} (Ctrl-C stops)", flush=True)
         while True:
             time.sleep(3600)
     except KeyboardInterrupt:

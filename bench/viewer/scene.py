@@ -317,9 +317,11 @@ def side_by_side(a: RunScene, b: RunScene, gap: float = 0.1) -> np.ndarray:
 
 def overview(bounds: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
     """(camera position [3], the point it looks at [3]) m that take in every (low, high) box of ``bounds``:
-    from behind the start (-z, the first camera looks along +z) and above it (-y: camera y points down)."""
+    from behind the start (-z, the first camera looks along +z) and above it (-y: camera y points down); one map
+    from a little to its right, maps side by side (along x) from straight behind their middle."""
     lo = np.min([b[0] for b in bounds], axis=0)
     hi = np.max([b[1] for b in bounds], axis=0)
     centre = (lo + hi) / 2
     span = max(float(np.max(hi - lo)), 1e-3)
-    return centre + np.array([0.0, -0.6, -0.9]) * span, centre
+    direction = np.array([0.3, -0.35, -0.55]) if len(bounds) == 1 else np.array([0.0, -0.5, -0.75])
+    return centre + direction * span, centre

@@ -255,7 +255,7 @@ class Viewer:
                     f"/{slot.name}/pruned",
                     points,
                     PRUNED_RGB,
-                    point_size=_frustum_size(scene) * 0.1,
+                    point_size=_frustum_size(scene) * 0.3,
                     precision="float32",  # float16 would move a centre 100 m out by centimetres
                 )
         self._visibility()
