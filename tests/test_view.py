@@ -207,6 +207,8 @@ def test_viewer_serves_the_run(tiny_run):
             np.testing.assert_array_equal(nodes["pruned"].points, record["xyz"])
         viewer.show(None)
         assert nodes["map"].buffer.shape[0] == metrics["gaussians_final"] and "pruned" not in nodes
+        with pytest.raises(ConfigError, match=r"^--keyframe: expected one of the keyframes 0, 1, .*found 99$"):
+            viewer.show(99)
     finally:
         viewer.stop()
 

@@ -85,13 +85,13 @@ class Viewer:
 
     def __init__(self, slots: list[tuple[list[Path], Path, int]], host: str = "127.0.0.1", port: int = 8080):
         """``slots``: per run shown, (its candidate run dirs, the dir they were found under, the one shown first)."""
-        check_port(host, port)
-        viser = import_viser()
         self.lock = threading.RLock()  # GUI callbacks run on viser's threads, one per client event
-        self.slots = [
+        self.slots = [  # the runs first: a bad run dir is the first thing said, viser or not
             Slot(name, runs, root, read_run(runs[pick], run_label(runs[pick], root)))
             for name, (runs, root, pick) in zip(SLOTS, slots, strict=False)
         ]
+        check_port(host, port)
+        viser = import_viser()
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         if port and self.server.get_port() != port:  # taken between the check and the bind: viser moved on
             self.server.stop()
