@@ -4,6 +4,7 @@ command's bad input, and the viser server on a tiny real run, checked through vi
 from __future__ import annotations
 
 import json
+import shutil
 import signal
 import socket
 import subprocess
@@ -258,3 +259,24 @@ def test_the_page_shows_the_map(tiny_run, tmp_path):
     scene = pixels[100:-100, 100:800]  # left of the GUI panel, clear of the corner axes
     drawn = (scene < 0.9).any(axis=-1).mean()
     assert drawn > 0.005, f"{drawn:.4f} of the scene's pixels off the background"
+
+
+@pytest.mark.slow
+def test_the_run_menu_switches_a_sweeps_run(tiny_run, tmp_path):
+    pytest.importorskip("viser")
+    from bench.viewer.serve import Viewer
+
+    sweep = tmp_path / "multirun" / "s"
+    fake_run(sweep / "a", "none")
+    shutil.copytree(tiny_run, sweep / "b")
+    [(runs, root, pick)] = cli.plan([sweep], None)
+    viewer = Viewer([(runs, root, pick)], port=0)
+    try:
+        slot, picker = viewer.slots[0], viewer.pickers["A"]
+        assert slot.nodes["map"].buffer.shape[0] == 9 and viewer.steps == [] and picker.value == "a: none seq=0"
+        picker.value = "b: pocket keep=0.4 seq=0"  # what picking it on the page does
+        n_final = json.loads((sweep / "b" / "metrics.json").read_text())["metrics"]["gaussians_final"]
+        assert slot.scene.run_dir == sweep / "b" and slot.nodes["map"].buffer.shape[0] == n_final
+        assert viewer.steps and "traj_est" in slot.nodes
+    finally:
+        viewer.stop()

@@ -136,13 +136,13 @@ class Viewer:
         self.show_est = gui.add_checkbox("estimated trajectory", initial_value=True)
         self.show_gt = gui.add_checkbox("ground truth", initial_value=True)
         self.show_kf = gui.add_checkbox("keyframes", initial_value=True)
-        self.pickers = []
+        self.pickers: dict[str, Any] = {}  # slot name -> its run menu (a sweep dir's runs)
         for slot in self.slots:
             if len(slot.runs) > 1:
                 labels = [run_label(r, slot.root) for r in slot.runs]
                 picker = gui.add_dropdown(f"run {slot.name}", tuple(labels), initial_value=slot.scene.label)
-                picker.on_update(lambda event, slot=slot, labels=labels: self._pick(slot, labels))
-                self.pickers.append(picker)
+                picker.on_update(lambda _, slot=slot, labels=labels: self._pick(slot, labels))
+                self.pickers[slot.name] = picker
         self.layout = None
         if len(self.slots) == 2:
             self.layout = gui.add_dropdown("layout", ("side by side", "A only", "B only"), initial_value="side by side")
@@ -173,12 +173,11 @@ class Viewer:
         return "  \n".join(lines)
 
     def _pick(self, slot: Slot, labels: list[str]) -> None:
-        picker = next(p for p in self.pickers if p.label == f"run {slot.name}")
-        run = slot.runs[labels.index(picker.value)]
+        run = slot.runs[labels.index(self.pickers[slot.name].value)]
         with self.lock:
             slot.scene = read_run(run, run_label(run, slot.root))
             slot.shown_step = None
-            for handle in slot.nodes.values():
+            for handle in reversed(slot.nodes.values()):  # the frame last: removing it takes its children along
                 handle.remove()
             slot.nodes.clear()
             self._draw(slot)
