@@ -86,6 +86,9 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch):
         err = capsys.readouterr().err
         assert err.startswith(f"error: {expected}") and err.count("\n") == 1, err
     good = str(fake_run(tmp_path / "good"))
+    assert cli.main([good, "--keyframe", "3", "--port", "0"]) == 2  # no snapshot, no pruning record
+    err = capsys.readouterr().err
+    assert err.startswith("error: --keyframe: expected no keyframe steps (") and err.endswith("found 3\n"), err
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
         busy.listen()

@@ -76,13 +76,7 @@ def main(argv: list[str] | None = None) -> int:
         slots = plan(args.run_dirs, args.run)
         from bench.viewer.serve import Viewer
 
-        viewer = Viewer(slots, host=args.host, port=args.port)
-        if args.keyframe is not None:
-            try:
-                viewer.show(args.keyframe)
-            except BenchError:
-                viewer.stop()
-                raise
+        viewer = Viewer(slots, host=args.host, port=args.port, keyframe=args.keyframe)
     except BenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_ERROR

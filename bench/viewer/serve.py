@@ -83,13 +83,22 @@ class Slot:
 class Viewer:
     """A running viser server showing one or two runs; ``stop()`` ends it."""
 
-    def __init__(self, slots: list[tuple[list[Path], Path, int]], host: str = "127.0.0.1", port: int = 8080):
-        """``slots``: per run shown, (its candidate run dirs, the dir they were found under, the one shown first)."""
+    def __init__(
+        self,
+        slots: list[tuple[list[Path], Path, int]],
+        host: str = "127.0.0.1",
+        port: int = 8080,
+        keyframe: int | None = None,
+    ):
+        """``slots``: per run shown, (its candidate run dirs, the dir they were found under, the one shown first);
+        ``keyframe``: the slider's start (None: the final map)."""
         self.lock = threading.RLock()  # GUI callbacks run on viser's threads, one per client event
         self.slots = [  # the runs first: a bad run dir is the first thing said, viser or not
             Slot(name, runs, root, read_run(runs[pick], run_label(runs[pick], root)))
             for name, (runs, root, pick) in zip(SLOTS, slots, strict=False)
         ]
+        self.steps = self._all_steps()
+        self._check_step(keyframe)
         check_port(host, port)
         viser = import_viser()
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
@@ -102,6 +111,7 @@ class Viewer:
         for slot in self.slots:
             self._draw(slot)
         self._layout()
+        self.show(keyframe)
 
     def _aim(self) -> None:
         """The camera a new page starts from (and "Reset View" returns to): every shown map in view."""
@@ -122,7 +132,6 @@ class Viewer:
     # --- GUI -------------------------------------------------------------------------------------
     def _gui(self) -> None:
         gui = self.server.gui
-        self.steps = self._all_steps()
         self.step_slider = gui.add_slider(
             "keyframe",
             min=0,
@@ -223,13 +232,16 @@ class Viewer:
 
     def show(self, kf: int | None) -> None:
         """Step to keyframe ``kf`` (one of ``steps``), or the final map for None: what moving the slider does."""
+        self._check_step(kf)
+        self.step_slider.value = len(self.steps) if kf is None else self.steps.index(kf)  # its on_update draws
+
+    def _check_step(self, kf: int | None) -> None:
         if kf is not None and kf not in self.steps:
             have = f"one of the keyframes {', '.join(map(str, self.steps))}" if self.steps else "no keyframe steps"
             raise ConfigError(
                 f"--keyframe: expected {have} (snapshots: save_maps=every_keyframe; prunes: viz.pruning=true), "
                 f"found {kf}"
             )
-        self.step_slider.value = len(self.steps) if kf is None else self.steps.index(kf)  # its on_update draws
 
     def _show_step(self, only: Slot | None = None) -> None:
         """The map and the pruned centres as they were after the slider's keyframe."""
