@@ -270,13 +270,17 @@ def test_the_run_menu_switches_a_sweeps_run(tiny_run, tmp_path):
     from bench.viewer.serve import Viewer
 
     sweep = tmp_path / "multirun" / "s"
+    fake_run(sweep / "0_failed", "none", with_map=False)
     fake_run(sweep / "a", "none")
     shutil.copytree(tiny_run, sweep / "b")
     [(runs, root, pick)] = cli.plan([sweep], None)
+    assert pick == 1  # the first run with a map
     viewer = Viewer([(runs, root, pick)], port=0)
     try:
         slot, picker = viewer.slots[0], viewer.pickers["A"]
         assert slot.nodes["map"].buffer.shape[0] == 9 and viewer.steps == [] and picker.value == "a: none seq=0"
+        picker.value = "0_failed: none seq=0"
+        assert slot.scene.run_dir == sweep / "a" and "**error:** expected a map in" in viewer.legend.content
         picker.value = "b: pocket keep=0.4 seq=0"  # what picking it on the page does
         n_final = json.loads((sweep / "b" / "metrics.json").read_text())["metrics"]["gaussians_final"]
         assert slot.scene.run_dir == sweep / "b" and slot.nodes["map"].buffer.shape[0] == n_final

@@ -12,15 +12,16 @@ import time
 from pathlib import Path
 
 from bench.errors import ArgumentParser, BenchError, ConfigError
-from bench.viewer.scene import find_runs, run_label
+from bench.viewer.scene import find_runs, has_map, run_label
 
 EXIT_ERROR = 2
 
 
 def pick_run(runs: list[Path], root: Path, choice: str | None) -> int:
-    """The index of ``choice`` (a 0-based number, or a substring of one run's path or label) in ``runs``."""
+    """The index of ``choice`` (a 0-based number, or a substring of one run's path or label) in ``runs``; without
+    one, the first run that has a map (a sweep's failed runs have none)."""
     if choice is None:
-        return 0
+        return next((i for i, r in enumerate(runs) if has_map(r)), 0)
     if choice.isdigit():
         if int(choice) < len(runs):
             return int(choice)
@@ -65,7 +66,9 @@ def plan(run_dirs: list[Path], picks: list[str] | None) -> list[tuple[list[Path]
         if len(runs) > 1:
             print(f"{path}: {len(runs)} runs (pick one on the page, or with --run N)")
             for n, run in enumerate(runs):
-                print(f"  {'*' if n == pick else ' '}{n:3d}  {run_label(run, path)}")
+                print(
+                    f"  {'*' if n == pick else ' '}{n:3d}  {run_label(run, path)}{'' if has_map(run) else '  [no map]'}"
+                )
         slots.append((runs, path, pick))
     return slots
 

@@ -145,6 +145,11 @@ def is_run_dir(path: Path) -> bool:
     return (Path(path) / schema.METRICS_FILE).is_file()
 
 
+def has_map(run_dir: Path) -> bool:
+    """Whether ``run_dir`` holds a map to show (``map.ply``, or a snapshot of a run that ended without one)."""
+    return (Path(run_dir) / MAP_FILE).is_file() or bool(snapshot_keyframes(run_dir))
+
+
 def find_runs(path: Path) -> list[Path]:
     """``[path]`` for a run dir, the run dirs under it (sorted) for a sweep or study dir."""
     path = Path(path)

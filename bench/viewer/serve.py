@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.errors import ConfigError
+from bench.errors import BenchError, ConfigError
 from bench.viewer.scene import (
     RunScene,
     Splats,
@@ -184,7 +184,12 @@ class Viewer:
     def _pick(self, slot: Slot, labels: list[str]) -> None:
         run = slot.runs[labels.index(self.pickers[slot.name].value)]
         with self.lock:
-            slot.scene = read_run(run, run_label(run, slot.root))
+            try:
+                scene = read_run(run, run_label(run, slot.root))
+            except BenchError as exc:  # a sweep's failed run has no map: say so on the page, keep showing the last
+                self.legend.content = f"{self._legend()}  \n**error:** {exc}"
+                return
+            slot.scene = scene
             slot.shown_step = None
             for handle in reversed(slot.nodes.values()):  # the frame last: removing it takes its children along
                 handle.remove()
