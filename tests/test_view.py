@@ -287,3 +287,25 @@ def test_the_run_menu_switches_a_sweeps_run(tiny_run, tmp_path):
         assert viewer.steps and "traj_est" in slot.nodes
     finally:
         viewer.stop()
+
+
+@pytest.mark.slow
+def test_a_corrupt_snapshot_is_one_line_at_start_and_a_note_on_the_page(tiny_run, tmp_path, capsys):
+    pytest.importorskip("viser")
+    from bench.viewer.serve import Viewer
+
+    broken = tmp_path / "broken"
+    shutil.copytree(tiny_run, broken)
+    (broken / "maps" / "kf_001.npz").write_bytes(b"not an npz")
+    assert cli.main([str(broken), "--keyframe", "1", "--port", "0"]) == 2
+    err = capsys.readouterr().err
+    assert (
+        err.startswith(f"error: expected '{broken / 'maps' / 'kf_001.npz'}' to hold the arrays")
+        and err.count("\n") == 1
+    )
+    viewer = Viewer([([broken], broken, 0)], port=0)
+    try:
+        viewer.step_slider.value = viewer.steps.index(1)  # moved on the page
+        assert "**error:** expected" in viewer.legend.content and "kf_001.npz" in viewer.legend.content
+    finally:
+        viewer.stop()

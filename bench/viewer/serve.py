@@ -93,6 +93,7 @@ class Viewer:
         """``slots``: per run shown, (its candidate run dirs, the dir they were found under, the one shown first);
         ``keyframe``: the slider's start (None: the final map)."""
         self.lock = threading.RLock()  # GUI callbacks run on viser's threads, one per client event
+        self.error: BenchError | None = None  # what the last step could not read
         self.slots = [  # the runs first: a bad run dir is the first thing said, viser or not
             Slot(name, runs, root, read_run(runs[pick], run_label(runs[pick], root)))
             for name, (runs, root, pick) in zip(SLOTS, slots, strict=False)
@@ -106,12 +107,16 @@ class Viewer:
             self.server.stop()
             raise ConfigError(f"--port: expected a free port, found {port} in use on {host}")
         self.host, self.port = host, self.server.get_port()
-        self.server.scene.set_up_direction("-y")  # the camera's y points down in every dataset's frames
-        self._gui()
-        for slot in self.slots:
-            self._draw(slot)
-        self._layout()
-        self.show(keyframe)
+        try:
+            self.server.scene.set_up_direction("-y")  # the camera's y points down in every dataset's frames
+            self._gui()
+            for slot in self.slots:
+                self._draw(slot)
+            self._layout()
+            self.show(keyframe)
+        except BaseException:  # a corrupt snapshot, say: no server left running behind the error line
+            self.server.stop()
+            raise
 
     def _aim(self) -> None:
         """The camera a new page starts from (and "Reset View" returns to): every shown map in view."""
@@ -157,7 +162,7 @@ class Viewer:
             self.layout = gui.add_dropdown("layout", ("side by side", "A only", "B only"), initial_value="side by side")
             self.layout.on_update(lambda _: self._layout())
         self.legend = gui.add_markdown(self._legend())
-        self.step_slider.on_update(lambda _: self._show_step())
+        self.step_slider.on_update(lambda _: self._on_slider())
         for box in (self.show_pruned, self.show_est, self.show_gt, self.show_kf):
             box.on_update(lambda _: self._visibility())
 
@@ -238,7 +243,19 @@ class Viewer:
     def show(self, kf: int | None) -> None:
         """Step to keyframe ``kf`` (one of ``steps``), or the final map for None: what moving the slider does."""
         self._check_step(kf)
+        self.error = None
         self.step_slider.value = len(self.steps) if kf is None else self.steps.index(kf)  # its on_update draws
+        if self.error is not None:
+            raise self.error
+
+    def _on_slider(self) -> None:
+        """The slider moved (on the page, or ``show``): draw that step; a file that cannot be read is said on the
+        page (and raised again by ``show``), not in viser's thread."""
+        try:
+            self._show_step()
+        except BenchError as exc:
+            self.error = exc
+            self.legend.content = f"{self._legend()}  \n**error:** {exc}"
 
     def _check_step(self, kf: int | None) -> None:
         if kf is not None and kf not in self.steps:
