@@ -6,7 +6,7 @@ naming them. ``--allow-dirty`` writes the report anyway and stamps every table (
 ``.tex``) and the folder's README with ``stamp_text``, e.g. "made from runs with uncommitted changes: 17 of 18".
 
 The committed folders whose run dirs are gone are stamped from their ``runs.csv`` alone:
-``python -m bench.report.provenance_check reports/NAME [...]`` (``tests/report/test_provenance_check.py`` checks
+``python -m bench.report.committed reports/NAME [...]`` (``tests/report/test_provenance_check.py`` checks
 every folder's stamp against its data).
 """
 
@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import re
 import subprocess
-import sys
-from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -23,11 +21,11 @@ from pathlib import Path
 import pandas as pd
 
 from bench.errors import ReportError
+from bench.report.blocks import get_block, put_block
 
 REPO = Path(__file__).resolve().parents[2]
-STAMP_BEGIN = "<!-- provenance-stamp -->"
-STAMP_END = "<!-- /provenance-stamp -->"
-STAMP_BLOCK = re.compile(re.escape(STAMP_BEGIN) + r".*?" + re.escape(STAMP_END) + r"\n*", re.DOTALL)
+STAMP_BLOCK = "provenance-stamp"
+STAMP_BEGIN = f"<!-- {STAMP_BLOCK} -->"
 TEX_STAMP = "% provenance: "
 MARKDOWN_TABLES = ("tables.md", "scale.md")
 
@@ -125,25 +123,18 @@ def stamp_report(folder: Path, stamp: str | None) -> list[Path]:
 
 def _stamp_markdown(text: str, stamp: str | None, readme: bool) -> str:
     """The block goes after a README's title line, at the top of a generated table file."""
-    text = STAMP_BLOCK.sub("", text)
-    if stamp is None:
-        return text
-    block = f"{STAMP_BEGIN}\n**Provenance: {stamp}** (`git_dirty`, `git_commit` in `runs.csv`).\n{STAMP_END}\n\n"
-    if readme and text.startswith("# "):
-        title, _, rest = text.partition("\n")
-        return f"{title}\n\n{block}{rest.lstrip(chr(10))}"
-    return block + text
+    body = None if stamp is None else f"**Provenance: {stamp}** (`git_dirty`, `git_commit` in `runs.csv`)."
+    return put_block(text, STAMP_BLOCK, body, after_title=readme)
 
 
 def stamp_of(folder: Path) -> str | None:
     """The stamp a README or table of ``folder`` carries now (None: none)."""
     for name in ("README.md", *MARKDOWN_TABLES):
         path = Path(folder) / name
-        if path.is_file():
-            match = STAMP_BLOCK.search(path.read_text(encoding="utf-8"))
-            if match:
-                found = re.search(r"\*\*Provenance: (.*?)\*\*", match.group(0))
-                return found.group(1) if found else None
+        body = get_block(path.read_text(encoding="utf-8"), STAMP_BLOCK) if path.is_file() else None
+        found = re.search(r"\*\*Provenance: (.*?)\*\*", body or "")
+        if found:
+            return found.group(1)
     return None
 
 
@@ -155,21 +146,3 @@ def stamp_committed(folder: Path) -> str | None:
     stamp = stamp_text(provenance(pd.read_csv(runs_csv, low_memory=False)))
     stamp_report(Path(folder), stamp)
     return stamp
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    folders = [Path(a) for a in (sys.argv[1:] if argv is None else argv)]
-    if not folders:
-        print("error: expected report folders, e.g. reports/memory, found none", file=sys.stderr)
-        return 2
-    try:
-        for folder in folders:
-            print(f"{folder}: {stamp_committed(folder) or 'clean'}")
-    except ReportError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

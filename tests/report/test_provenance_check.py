@@ -131,6 +131,6 @@ COMMITTED = sorted(p.parent for p in (REPO / "reports").glob("*/runs.csv"))
 def test_every_committed_report_carries_the_stamp_its_runs_give(folder):
     runs = pd.read_csv(folder / "runs.csv", low_memory=False)
     expected = provenance_check.stamp_text(provenance_check.provenance(runs))
-    assert provenance_check.stamp_of(folder) == expected, f"run: python -m bench.report.provenance_check {folder}"
+    assert provenance_check.stamp_of(folder) == expected, f"run: python -m bench.report.committed {folder}"
     for tex in folder.glob("*.tex"):
         assert tex.read_text().startswith(f"% provenance: {expected}\n") == (expected is not None)
