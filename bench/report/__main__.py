@@ -40,6 +40,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "a positional KEY=VALUE is an override the study ran with (as after +study=NAME)",
     )
     parser.add_argument(
+        "--index",
+        nargs="?",
+        const=Path("reports"),
+        default=None,
+        type=Path,
+        metavar="REPORTS_DIR",
+        help="write REPORTS_DIR/README.md (default reports/), the index of every report folder, from each "
+        "folder's README, runs.csv and study file",
+    )
+    parser.add_argument(
         "--allow-dirty",
         action="store_true",
         help="with --study: report runs made with uncommitted changes or at a commit not in this repository's "
@@ -87,6 +97,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         formats = tuple(f.strip().lower().lstrip(".") for f in args.format.split(",") if f.strip())
         check_figure_options(formats, args.dpi)  # before any table is written
+        if args.index is not None:
+            from bench.report.index import write
+
+            if args.dirs or args.out or args.study or args.redraw:
+                raise ReportError("--index takes only the reports dir, found run dirs, --out, --study or --redraw")
+            print(f"wrote {write(args.index)}")
+            return 0
         if args.redraw is not None:
             if args.dirs or args.out:
                 raise ReportError(
