@@ -92,7 +92,9 @@ def our_regime(runs: pd.DataFrame) -> dict[str, str]:
     targets = []
     for target in _values(runs, "prune.target") or (["ratio"] if _values(runs, "keep_ratio") else []):
         if target == "absolute":
-            targets.append(f"absolute N_tar {_join(_values(runs, 'prune.n_target'))}")
+            counts = [_text(v) for v in _values(runs, "prune.n_target")]
+            counts += [f"{_text(v)} per Mpx" for v in _values(runs, "prune.n_target_per_mpx")]
+            targets.append(f"absolute N_tar {_join(counts)}")
         else:
             targets.append(f"keep ratio {_join(_values(runs, 'keep_ratio'), 'n/a')} of the candidates")
     return {

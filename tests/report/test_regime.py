@@ -56,6 +56,8 @@ def test_our_regime_reads_the_runs():
     assert ours["memory measure"] == "CUDA allocator peak (torch.cuda.max_memory_allocated)"
     assert ours["pruning target"] == "absolute N_tar 15000"
     assert "(the paper has no rows on it: its KITTI regime)" in regime.regime_markdown(runs)
+    per_mpx = runs.assign(**{"prune.n_target": [None, None], "prune.n_target_per_mpx": [176359.0, 176359.0]})
+    assert regime.our_regime(per_mpx)["pruning target"] == "absolute N_tar 176359 per Mpx"
 
 
 COMMITTED = sorted(p.parent for p in (REPO / "reports").glob("*/runs.csv"))
