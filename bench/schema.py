@@ -75,6 +75,7 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
         "0 with the policy off",
     ),
     Field("n_restored", "", "Gaussians `slam.residency` brought back from disk at this keyframe, before densifying"),
+    Field("n_kf_held", "", "keyframes the store holds at the window's end (in memory or on disk)"),
     Field("state_bytes", "B", "exact bytes of Gaussian state: params, grads, Adam moments, strategy state"),
     Field("state_mib", "MiB", "`state_bytes` in MiB"),
     Field("cpu_rss_peak_mib", "MiB", "process peak RSS in the window (VmHWM, or sampled)"),
@@ -284,6 +285,29 @@ METRIC_FIELDS: tuple[Field, ...] = (
     Field("gaussians_pruned_total", "", "sum of `n_pruned`"),
     Field("prune_candidates_total", "", "sum of `n_candidates`"),
     Field("state_peak_mib", "MiB", "largest `state_mib`"),
+    # the regime: how densely the map grows, and what pruning can reach (bench.schema.regime_summary)
+    Field(
+        "gaussians_added_per_kf_mpx",
+        "",
+        "`gaussians_added_total` / `num_keyframes` / megapixels of the run's images: how densely the map grows",
+    ),
+    Field(
+        "state_per_gaussian_bytes",
+        "B",
+        "Gaussian state (params, grads, Adam moments, strategy state) per Gaussian, at the largest map",
+    ),
+    Field(
+        "store_per_keyframe_bytes",
+        "B",
+        "keyframe store bytes in memory per keyframe held, at the keyframe window of largest peak",
+    ),
+    Field(
+        "gaussian_share_of_peak",
+        "",
+        "(`mem_state_mib` + `mem_work_mib`) / the peak, at the keyframe window of largest peak: the part "
+        "that follows the Gaussians, every work buffer counted as following them (an upper bound); one minus "
+        "it bounds from below what no pruning can save there. Null where the memory parts are",
+    ),
     Field("cpu_rss_peak_mib", "MiB", "largest window value of the column of that name"),
     Field("torch_live_peak_mib", "MiB", "largest window value of the column of that name"),
     Field("cuda_alloc_peak_mib", "MiB", "largest window value of the column of that name"),
@@ -305,6 +329,9 @@ METRIC_FIELDS: tuple[Field, ...] = (
     ),
 )
 METRIC_NAMES: tuple[str, ...] = tuple(f.name for f in METRIC_FIELDS)
+REGIME_FIELDS: tuple[str, ...] = (
+    "gaussians_added_per_kf_mpx", "state_per_gaussian_bytes", "store_per_keyframe_bytes", "gaussian_share_of_peak",
+)  # fmt: skip
 NUMERIC_METRICS: frozenset[str] = frozenset(f.name for f in METRIC_FIELDS if f.kind == "number")
 
 
@@ -325,6 +352,28 @@ def memory_summary(windows: Sequence[dict[str, Any]], device_type: str) -> dict[
     source = next((s for s in sources if summary[PEAK_SOURCES[s]] is not None), sources[0])
     summary[PEAK_FIELD], summary[PEAK_SOURCE_FIELD] = summary[PEAK_SOURCES[source]], source
     return summary
+
+
+def regime_summary(windows: Sequence[dict[str, Any]], image_hw: tuple[int, int], peak_source: Any) -> dict[str, Any]:
+    """The run's regime descriptors (``metrics.json``) from its keyframes.csv rows and image size (H, W)."""
+    mpx = image_hw[0] * image_hw[1] / 1e6
+    out: dict[str, Any] = dict.fromkeys(REGIME_FIELDS)
+    if not windows:
+        return out
+    out["gaussians_added_per_kf_mpx"] = round(sum(w["n_added"] for w in windows) / len(windows) / mpx, 1)
+    largest = max(windows, key=lambda w: w["n_gaussians"])
+    if largest["n_gaussians"]:
+        out["state_per_gaussian_bytes"] = round(largest["state_bytes"] / largest["n_gaussians"], 1)
+    col = peak_column(peak_source)
+    at_peak = [w for w in windows if w.get(col or "") is not None]
+    if col is None or not at_peak:
+        return out
+    w = max(at_peak, key=lambda r: r[col])
+    if w.get("mem_keyframes_mib") is not None and w.get("n_kf_held"):
+        out["store_per_keyframe_bytes"] = round(w["mem_keyframes_mib"] * MIB / w["n_kf_held"], 1)
+    if w.get("mem_state_mib") is not None and w.get("mem_work_mib") is not None and w[col] > 0:
+        out["gaussian_share_of_peak"] = round((w["mem_state_mib"] + w["mem_work_mib"]) / w[col], 4)
+    return out
 
 
 def peak_column(source: Any) -> str | None:

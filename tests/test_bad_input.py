@@ -76,7 +76,7 @@ SETTING_CASES: dict[str, Case] = {
     "keep-ratio-text": Case(["prune.keep_ratio=abc"], ["prune.keep_ratio", "found 'abc'"]),
     "prune-target-unknown": Case(["prune.target=count"], ["prune.target: expected one of ratio, absolute", "'count'"]),
     "prune-absolute-no-count": Case(
-        ["prune.target=absolute"], ["prune.n_target: expected an integer >= 0 with prune.target=absolute"]
+        ["prune.target=absolute"], ["prune.n_target / prune.n_target_per_mpx: expected exactly one of them"]
     ),
     "prune-every-unknown": Case(["prune.every=second"], ["prune.every: expected one of keyframe, frame", "'second'"]),
     "threads-text": Case(["threads=abc"], ["threads: expected an integer >= 1 or null", "found 'abc'"]),

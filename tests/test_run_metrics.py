@@ -37,6 +37,12 @@ def test_metrics_json_times_and_keys_agree(tmp_path):
     assert (m["ate_first_frame"], m["ate_last_frame"]) == (0, m["num_frames"] - 1)
     assert "ate_frames" not in m
     assert m["eval_s"] > 0 and m["wall_s"] >= loop + m["refine_s"] + m["eval_s"]
+    # the regime descriptors, from the run's own counts
+    mpx = 48 * 32 / 1e6
+    expected = m["gaussians_added_total"] / m["num_keyframes"] / mpx
+    assert m["gaussians_added_per_kf_mpx"] == pytest.approx(expected, abs=0.1)
+    assert m["state_per_gaussian_bytes"] > 0 and m["store_per_keyframe_bytes"] > 0
+    assert 0 < m["gaussian_share_of_peak"] <= 1
 
 
 @pytest.mark.slow

@@ -83,3 +83,19 @@ def test_score_view_columns_are_keyframe_fields():
     kinds = {f.name: f.kind for f in schema.KEYFRAME_FIELDS}
     assert kinds["n_score_views"] == "number" and kinds["score_views"] == "text"
     assert index_ranges([0, 1, 2, 3, 5, 7, 8, 9]) == "0-3;5;7-9" and index_ranges([4]) == "4"
+
+
+def test_regime_descriptors_come_from_the_windows():
+    rows = [
+        {"n_added": 300, "n_gaussians": 300, "state_bytes": 300 * 248, "n_kf_held": 1, "torch_live_peak_mib": 10.0,
+         "mem_state_mib": 2.0, "mem_keyframes_mib": 1.0, "mem_work_mib": 5.0},
+        {"n_added": 100, "n_gaussians": 250, "state_bytes": 250 * 248, "n_kf_held": 2, "torch_live_peak_mib": 12.0,
+         "mem_state_mib": 3.0, "mem_keyframes_mib": 2.0, "mem_work_mib": 6.0},
+    ]  # fmt: skip
+    d = schema.regime_summary(rows, (500, 1000), "torch_live")
+    assert d["gaussians_added_per_kf_mpx"] == 400 / 2 / 0.5
+    assert d["state_per_gaussian_bytes"] == 248.0  # at the largest map
+    assert d["store_per_keyframe_bytes"] == 2.0 * schema.MIB / 2  # at the window of the largest peak
+    assert d["gaussian_share_of_peak"] == round((3.0 + 6.0) / 12.0, 4)
+    assert schema.regime_summary(rows, (500, 1000), "cpu_rss")["gaussian_share_of_peak"] is None  # no parts there
+    assert set(schema.regime_summary([], (1, 1), None)) == set(schema.REGIME_FIELDS)

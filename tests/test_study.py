@@ -191,6 +191,7 @@ def test_a_user_study_in_conf_runs_resumes_and_reports(tmp_path, monkeypatch):
     assert {name: path.stat().st_mtime_ns for name, path in dirs.items()} == stamp
     from bench.report.__main__ import main as report
 
-    assert report(["--study", "mini", *TINY]) == 0  # the runs of the study as it ran, with the same overrides
+    # the runs of the study as it ran, with the same overrides (--allow-dirty: a developer's tree may be dirty)
+    assert report(["--study", "mini", "--allow-dirty", *TINY]) == 0
     written = pd.read_csv(tmp_path / "reports" / "mini" / "runs.csv")
     assert sorted(written["strategy"]) == ["none", "pocket"]

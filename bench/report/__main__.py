@@ -12,7 +12,9 @@ import sys
 from pathlib import Path
 
 from bench.errors import ArgumentParser, BenchError, ReportError
+from bench.report import provenance_check
 from bench.report.build import load_labels, make_report, redraw
+from bench.report.collect import collect
 from bench.report.figures.output import DPI, check_figure_options
 
 
@@ -36,6 +38,22 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         default=None,
         help="the runs of conf/study/NAME.yaml (bench.study) and its report options: --out, --paper; "
         "a positional KEY=VALUE is an override the study ran with (as after +study=NAME)",
+    )
+    parser.add_argument(
+        "--index",
+        nargs="?",
+        const=Path("reports"),
+        default=None,
+        type=Path,
+        metavar="REPORTS_DIR",
+        help="write REPORTS_DIR/README.md (default reports/), the index of every report folder, from each "
+        "folder's README, runs.csv and study file",
+    )
+    parser.add_argument(
+        "--allow-dirty",
+        action="store_true",
+        help="with --study: report runs made with uncommitted changes or at a commit not in this repository's "
+        "history, and stamp every table and the README with how many (refused without it)",
     )
     parser.add_argument("--paper", action="store_true", default=None, help="add the paper's figures as '(paper)' rows")
     parser.add_argument("--baseline", default="none", help="strategy the relative columns compare with")
@@ -79,6 +97,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         formats = tuple(f.strip().lower().lstrip(".") for f in args.format.split(",") if f.strip())
         check_figure_options(formats, args.dpi)  # before any table is written
+        if args.index is not None:
+            from bench.report.index import write
+
+            if args.dirs or args.out or args.study or args.redraw:
+                raise ReportError("--index takes only the reports dir, found run dirs, --out, --study or --redraw")
+            print(f"wrote {write(args.index)}")
+            return 0
         if args.redraw is not None:
             if args.dirs or args.out:
                 raise ReportError(
@@ -90,8 +115,10 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"warning: {warning}", file=sys.stderr)
             print(f"{len(result.runs)} runs: redrew {len(result.files)} figures in {result.out}")
             return 0
+        stamp: str | None = None
         if args.study:
             study_inputs(args)
+            stamp = provenance_check.check(args.study, collect(args.dirs).runs, args.allow_dirty)
         if not args.dirs or args.out is None:
             raise ReportError("expected run dirs and --out (or --study NAME, or --redraw REPORT_DIR)")
         result = make_report(
@@ -103,6 +130,10 @@ def main(argv: list[str] | None = None) -> int:
             dpi=args.dpi,
             labels=load_labels(args.labels),
         )
+        if args.study:
+            result.files += [f for f in provenance_check.stamp_report(result.out, stamp) if f not in result.files]
+            if stamp:
+                print(f"warning: study '{args.study}': {stamp}, stamped on its tables and README", file=sys.stderr)
     except BenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -19,6 +19,7 @@ from bench.report.figures.output import DPI
 from bench.report.figures.runs import read_keyframes
 from bench.report.names import use_method_names
 from bench.report.paper import load_paper_tables
+from bench.report.regime import put_regime
 from bench.report.render import tables_markdown, to_latex
 from bench.report.route_scale import MILESTONES_FILE, read_milestones, scale_markdown
 from bench.report.settings import mixed_settings, settings_markdown
@@ -128,7 +129,8 @@ def _make_report(
         path.write_text(to_latex(table), encoding="utf-8")
         files.append(path)
     markdown = out / "tables.md"
-    markdown.write_text(tables_markdown(tables) + "\n" + settings_markdown(runs), encoding="utf-8")
+    text = tables_markdown(tables) + "\n" + settings_markdown(runs)
+    markdown.write_text(put_regime(text, runs) if paper else text, encoding="utf-8")  # the paper's rows: both regimes
     files.append(markdown)
     files.append(out / "stats.csv")
     seed_statistics(tables, baseline).to_csv(files[-1], index=False)
@@ -139,7 +141,7 @@ def _make_report(
         stacked = stack_run_tables(milestones)
         stacked.to_csv(files[-1], index=False)
         files.append(out / "scale.md")
-        files[-1].write_text(scale_markdown(runs, keyframes, stacked, baseline), encoding="utf-8")
+        files[-1].write_text(put_regime(scale_markdown(runs, keyframes, stacked, baseline), runs), encoding="utf-8")
     files += make_plots(
         runs, out, warnings.append, formats, dpi, keyframes=keyframes, milestones=milestones, long_drives=long_drives
     )

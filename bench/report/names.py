@@ -16,6 +16,7 @@ METHOD_NAMES: dict[str, str] = {
     "mask": "MaskGaussian",
     "area": "Ours (w/o Tile Budget)",
     "pocket": "Ours (w/ Tile Budget)",
+    "random": "Random (chance baseline)",
     # the literature criteria as their authors' code computes them (issue 42; strategies/<name>.py)
     "lightgaussian": "LightGaussian (code)",
     "radsplat": "RadSplat",

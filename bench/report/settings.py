@@ -21,7 +21,7 @@ SETTING_KEYS: tuple[str, ...] = (
     "slam.raster_backend", "slam.raster_antialias", "slam.isotropic", "slam.tracking_iters", "slam.mapping_iters",
     "slam.mapping_fit_psnr_db", "slam.mapping_schedule", "slam.mapping_draw", "slam.kf_every", "slam.refine_iters",
     "slam.refine_lr_final", "slam.densify_silhouette", "slam.densify_stride", "slam.init_opacity",
-    "prune.target", "prune.n_target", "prune.every", "prune.grad_source",
+    "prune.target", "prune.n_target", "prune.n_target_per_mpx", "prune.every", "prune.grad_source",
     "dataset.downscale", "dataset.width", "dataset.height", "dataset.n_frames", "dataset.first", "dataset.last",
     "dataset.stride", "dataset.route", "dataset.route_file",
     "threads", "determinism", "eval.protocol",

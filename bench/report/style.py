@@ -35,6 +35,7 @@ COLOURS: dict[str, str] = {
     "opacity": "#0072B2",  # blue
     "gradient": "#009E73",  # bluish green
     "mask": "#CC79A7",  # reddish purple
+    "random": "#555555",  # dark grey: chance, the floor a criterion is read against
     # the literature criteria (their own panel): Paul Tol's muted scheme, also colour-blind-safe
     "lightgaussian": "#332288",  # indigo
     "radsplat": "#88CCEE",  # cyan

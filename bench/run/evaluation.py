@@ -58,6 +58,7 @@ def finish(
     metrics["phase_s"] = {k: round(v, 3) for k, v in timer.totals().items() if k != "refine"}
     metrics["memory_method"] = {"cpu_rss": parts.probe.rss_method, "torch_live": cfg.memory.torch_live}
     metrics.update(schema.memory_summary([*drive.windows, drive.tail], device.type))
+    metrics.update(schema.regime_summary(drive.windows, (system.H, system.W), metrics[schema.PEAK_SOURCE_FIELD]))
     metrics["gaussians_final"] = len(system.map)
     # churn: did pruning shrink the map, or only feed re-seeding?
     metrics["gaussians_added_total"] = sum(w["n_added"] for w in drive.windows)

@@ -246,6 +246,7 @@ def keyframe_row(parts: RunSetup, res: FrameResult, frame_index: int, between: d
         "n_candidates": res.n_candidates + between["n_candidates"],
         "n_evicted": system.n_evicted(),
         "n_restored": res.n_restored,
+        "n_kf_held": len(system.keyframes),
         "state_bytes": state_bytes,
         "state_mib": round(state_bytes / schema.MIB, 4),
         **{k: _round(v) for k, v in mem.items()},

@@ -37,6 +37,9 @@ class DensifyConfig:
     # the map holds at most this many Gaussians once a keyframe's seeds are in; at the cap, the strategy's
     # score ranks what is kept (Strategy.cap_score) and the lowest-scored make room for the seeds; null = no cap
     cap: int | None = setting(None, "int", lo=1, nullable=True)
+    # the cap as a rule fixed before the runs, not read off them: after keyframe k (0-based) the map holds at most
+    # cap_per_mpix_kf x the image's megapixels x (k + 1) Gaussians (the lower of the two where cap is set too)
+    cap_per_mpix_kf: float | None = setting(None, "float", lo=0.0, lo_open=True, nullable=True)
     # at the cap, a strategy without a score (none, and every strategy whose score hook returns None):
     # "drop" = no Gaussian is removed, the seeds beyond the cap are not added; "opacity" = rank by opacity
     unscored: str = setting("drop", "str", choices=CAP_UNSCORED)

@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 import torch
 
-from bench.slam.densify import cap_keep, pick_seeds, seed_budget
+from bench.slam.densify import cap_keep, map_cap, pick_seeds, seed_budget
 from bench.slam.keyframes import Keyframe
 from bench.slam.losses import dssim
 from bench.slam.prune_diagnostics import own_fit
@@ -46,7 +46,7 @@ class Mapping(SystemState):
         grid[oy::s, ox::s] = True
         sel = need & valid & grid
         self._densify_dropped = self._cap_removed = 0
-        if cfg.densify.cap is not None or cfg.densify.budget is not None:
+        if cfg.densify.cap is not None or cfg.densify.cap_per_mpix_kf is not None or cfg.densify.budget is not None:
             ones = torch.ones_like(depth)  # no map yet: every pixel's deficit is whole, its error even
             sel = self._bound_seeds(
                 sel, kf_idx, w2c, ones if deficit is None else deficit, err if err is not None else ones
@@ -91,11 +91,12 @@ class Mapping(SystemState):
         budget = seed_budget(dcfg, kf_idx, len(self.map), self._densify_start)
         if budget is not None:
             k = min(k, budget)
-        if dcfg.cap is not None and len(self.map) + k > dcfg.cap:
+        cap = map_cap(dcfg, kf_idx, sel.numel())
+        if cap is not None and len(self.map) + k > cap:
             score = self._cap_score(kf_idx, w2c) if len(self.map) else None
             if score is not None:
-                self._cap_removed = self.map.remove(cap_keep(score, max(dcfg.cap - k, 0)))
-            k = min(k, dcfg.cap - len(self.map))
+                self._cap_removed = self.map.remove(cap_keep(score, max(cap - k, 0)))
+            k = max(min(k, cap - len(self.map)), 0)
         if self._densify_start is None:  # the taming curve starts from the map as keyframe 0 leaves it
             self._densify_start = len(self.map) + k
         self._densify_dropped = n_cand - k

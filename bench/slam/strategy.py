@@ -116,6 +116,9 @@ class PruneConfig:
     target: str = setting("ratio", "str", choices=PRUNE_TARGETS)
     # the absolute N_tar (released code: 80,000 on KITTI, 60,000 on EuRoC)
     n_target: int | None = setting(None, "int", lo=0, nullable=True)
+    # or the absolute N_tar per megapixel of the run's images, so that the budget scales with the resolution:
+    # N_tar = round(n_target_per_mpx x H x W / 1e6) (the released 60,000 at EuRoC's 752x480 is 166,229 per Mpx)
+    n_target_per_mpx: float | None = setting(None, "float", lo=0.0, nullable=True)
     # keyframe: after each keyframe's mapping; frame: also after each tracked frame
     every: str = setting("keyframe", "str", choices=PRUNE_EVERY)
     # g_i, the per-Gaussian tracking gradient that pocket's tile budgets and gradient pruning read:
@@ -126,15 +129,25 @@ class PruneConfig:
 
     def __post_init__(self) -> None:
         check_rules(self, "prune.")
-        if self.target == "absolute" and (not isinstance(self.n_target, int) or self.n_target < 0):
+        given = [k for k in ("n_target", "n_target_per_mpx") if getattr(self, k) is not None]
+        if self.target == "absolute" and len(given) != 1:
             raise ConfigError(
-                f"prune.n_target: expected an integer >= 0 with prune.target=absolute, found {self.n_target!r}"
+                "prune.n_target / prune.n_target_per_mpx: expected exactly one of them with prune.target=absolute, "
+                f"found {' and '.join(given) or 'neither'}"
+            )
+        if self.target == "ratio" and given:
+            raise ConfigError(
+                f"prune.{given[0]}: expected it only with prune.target=absolute, found prune.target=ratio"
             )
 
-    @property
-    def target_count(self) -> int | None:
-        """The absolute N_tar for PruneContext, or None when N_tar follows the keep ratio."""
-        return self.n_target if self.target == "absolute" else None
+    def target_count(self, image_hw: tuple[int, int]) -> int | None:
+        """The absolute N_tar for PruneContext at images of ``image_hw`` (H, W), or None when N_tar follows the
+        keep ratio."""
+        if self.target != "absolute":
+            return None
+        if self.n_target_per_mpx is not None:
+            return int(round(self.n_target_per_mpx * image_hw[0] * image_hw[1] / 1e6))
+        return self.n_target
 
 
 @dataclass

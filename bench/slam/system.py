@@ -416,7 +416,7 @@ class System(Tracking, Mapping, PruneDiagnostics):
             candidates,
             self.keep_ratio,
             (self.H, self.W),
-            self.prune.target_count,
+            self.prune.target_count((self.H, self.W)),
             renderer=self._score_views,
             mapping_grad2d=(st["_map_grad2d_sum"], st["_map_grad2d_n"]) if self._map_grad2d else None,
             seed=self.cfg.seed,

@@ -134,3 +134,19 @@ def test_region_psnr_is_over_the_selected_pixels_only():
     assert region_psnr_db(sq) == pytest.approx(-10 * math.log10(0.00505))
     assert region_psnr_db(sq, torch.zeros_like(left)) is None
     assert region_psnr_db(torch.zeros(2, 2)) == math.inf
+
+
+@pytest.mark.parametrize(("h", "w", "noise"), [(176, 176, 0.02), (185, 243, 0.3), (370, 613, 0.02), (181, 181, 0.6)])
+def test_separable_window_gives_torchmetrics_figures(h: int, w: int, noise: float) -> None:
+    """SSIM and MS-SSIM through the separable window equal torchmetrics' own functions (full 2D window) to
+    float64 rounding, odd sides (halved with a dropped row or column) and a dissimilar pair included."""
+    from torchmetrics.functional.image import multiscale_structural_similarity_index_measure as tm_ms_ssim
+
+    from bench.metrics.image import MS_SSIM_BETAS, WINDOW, ms_ssim
+
+    target = _image(h, w, seed=3)
+    pred = _noisy(target, noise, seed=4)
+    p, t = (x.double().permute(2, 0, 1)[None] for x in (pred, target))  # [1, 3, H, W]
+    assert ssim(pred, target) == pytest.approx(float(tm_ssim(p, t, **WINDOW)), abs=1e-12)
+    expected = float(tm_ms_ssim(p, t, **WINDOW, betas=MS_SSIM_BETAS, normalize="relu"))
+    assert ms_ssim(pred, target) == pytest.approx(expected, abs=1e-12)

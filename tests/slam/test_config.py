@@ -34,7 +34,12 @@ def test_unknown_setting_lists_the_known_ones():
     ("kwargs", "needle"),
     [
         ({"target": "count"}, "prune.target: expected one of ratio, absolute, found 'count'"),
-        ({"target": "absolute"}, "prune.n_target: expected an integer >= 0 with prune.target=absolute, found None"),
+        ({"target": "absolute"}, "expected exactly one of them with prune.target=absolute, found neither"),
+        (
+            {"target": "absolute", "n_target": 5, "n_target_per_mpx": 1e5},
+            "expected exactly one of them .* found n_target and n_target_per_mpx",
+        ),
+        ({"n_target_per_mpx": 1e5}, "prune.n_target_per_mpx: expected it only with prune.target=absolute"),
         ({"every": "second"}, "prune.every: expected one of keyframe, frame, found 'second'"),
         ({"grad_source": "x"}, "prune.grad_source: expected one of params_last, means2d_all, found 'x'"),
         ({"keep_ratio": 1.5}, r"prune.keep_ratio: expected a number in \(0, 1\], found 1.5"),

@@ -9,7 +9,7 @@ import torch
 
 from bench.errors import ConfigError
 from bench.slam.config import DensifyConfig, SlamConfig
-from bench.slam.densify import cap_keep, pick_seeds, seed_budget, taming_target
+from bench.slam.densify import cap_keep, map_cap, pick_seeds, seed_budget, taming_target
 from bench.slam.gaussians import GaussianMap
 from bench.slam.strategy import CheckedStrategy, PruneContext, Strategy, load_strategy
 from bench.slam.system import System
@@ -66,6 +66,29 @@ def test_the_cap_is_never_exceeded_and_the_counts_add_up(seq, name):
         if name == "none":
             assert res.diag["n_cap_removed"] == 0  # no score: nothing removed, seeds dropped
     assert len(system.map) == cap or name == "pocket"
+
+
+def test_a_cap_by_rule_grows_with_the_keyframes_and_holds(seq):
+    """slam.densify.cap_per_mpix_kf: after keyframe k the map holds at most rate x megapixels x (k + 1)."""
+    rate = 1e5  # 48x32 px: 153 Gaussians more allowed per keyframe, fewer than a keyframe seeds unbounded
+    system = _system(seq, load_strategy("none", {}), cap_per_mpix_kf=rate)
+    caps = []
+    for i in range(len(seq)):
+        res = system.step(seq[i])
+        caps.append(int(rate * seq.width * seq.height / 1e6 * (i + 1)))
+        assert len(system.map) + res.n_pruned <= caps[-1]
+    unbounded, _ = _drive(seq, load_strategy("none", {}))
+    assert len(system.map) < len(unbounded.map)  # the rule binds
+
+
+def test_the_rule_and_a_fixed_cap_take_the_lower():
+    rule = DensifyConfig(cap_per_mpix_kf=2000.0)
+    both = DensifyConfig(cap=5000, cap_per_mpix_kf=2000.0)
+    assert map_cap(DensifyConfig(), 3, 10**6) is None
+    assert map_cap(DensifyConfig(cap=5000), 3, 10**6) == 5000
+    assert [map_cap(rule, k, 10**6) for k in (0, 1, 2)] == [2000, 4000, 6000]
+    assert [map_cap(both, k, 10**6) for k in (0, 1, 2)] == [2000, 4000, 5000]
+    assert map_cap(rule, 0, 100) == 1  # never a cap of 0
 
 
 def test_at_the_cap_the_lowest_scored_are_removed():
@@ -149,6 +172,7 @@ def test_seed_orders_are_deterministic():
     ("densify", "message"),
     [
         ({"cap": 0}, "slam.densify.cap: expected an integer >= 1 or null, found 0"),
+        ({"cap_per_mpix_kf": 0}, "slam.densify.cap_per_mpix_kf: expected a number > 0 or null, found 0"),
         ({"budget": "linear"}, "slam.densify.budget: expected one of constant, taming or null, found 'linear'"),
         ({"budget": "constant"}, "slam.densify.per_keyframe: expected an integer with slam.densify.budget=constant"),
         ({"per_keyframe": -1}, "slam.densify.per_keyframe: expected an integer >= 0 or null, found -1"),

@@ -88,6 +88,39 @@ def test_mask_masks_all_but_n_target_candidates(scene, keep_ratio):
     assert keep[groups["off"]].all() and keep[groups["new"]].all()
 
 
+def test_a_budget_per_megapixel_scales_with_the_image():
+    from bench.slam.strategy import PruneConfig
+
+    per_mpx = PruneConfig(target="absolute", n_target_per_mpx=60_000 / (752 * 480 / 1e6))
+    assert per_mpx.target_count((480, 752)) == 60_000  # the released EuRoC budget at its own resolution
+    assert per_mpx.target_count((240, 376)) == 15_000  # a quarter of the pixels, a quarter of the Gaussians
+    assert PruneConfig(target="absolute", n_target=80_000).target_count((96, 160)) == 80_000  # a count stays a count
+    assert PruneConfig().target_count((480, 752)) is None  # the ratio target
+
+
+def test_random_keeps_n_target_candidates_drawn_by_the_seed(scene):
+    groups = mixed_scene(scene)
+    strategy, ctx = prepared(scene, "random", 0.4)
+    keep = strategy.after_mapping(ctx)
+    assert int((keep & ctx.candidates).sum()) == ctx.n_target == math.ceil(0.4 * 46)
+    assert keep[~ctx.candidates].all() and keep[groups["new"]].all()
+    assert torch.equal(keep, strategy.after_mapping(ctx))  # same seed and keyframe: the same subset
+    other_seed = strategy.after_mapping(dataclasses.replace(ctx, seed=ctx.seed + 1))
+    other_kf = strategy.after_mapping(dataclasses.replace(ctx, keyframe_index=ctx.keyframe_index + 1))
+    assert not torch.equal(keep, other_seed) and not torch.equal(keep, other_kf)
+
+
+def test_random_draws_every_candidate_alike(scene):
+    """Uniform: over many keyframes each candidate is kept about n_target / candidates of the time."""
+    mixed_scene(scene)
+    strategy, ctx = prepared(scene, "random", 0.4)
+    kept = sum(strategy.after_mapping(dataclasses.replace(ctx, keyframe_index=k)).float() for k in range(2000))
+    share = kept[ctx.candidates] / 2000  # [46]
+    p = ctx.n_target / 46
+    # binomial sd of a share over 2,000 draws is about 0.011: 5 sd either way
+    assert float((share - p).abs().max()) < 0.06, share
+
+
 def test_absolute_target_is_a_count_not_a_ratio(scene):
     mixed_scene(scene)
     _, ctx = prepared(scene, "area", 0.4)

@@ -27,6 +27,7 @@ BUILT_INS = [
     "opacity",
     "pocket",
     "radsplat",
+    "random",
     "speedysplat",
     "trimfat",
 ]

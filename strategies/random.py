@@ -1,0 +1,30 @@
+"""A uniformly random subset: the chance baseline every criterion is read against.
+
+At the same N_tar as a criterion, ``random`` keeps ``n_target`` of the candidates drawn uniformly without
+replacement. A criterion that does not beat it on accuracy at the same count ranks Gaussians no better
+than chance (SafeguardGS's harness keeps such a baseline for the same reason). The draw is seeded by the
+run's seed and the keyframe index, so the same config and seed keep the same Gaussians.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import torch
+
+from bench.api import PruneContext, Strategy, top_k_keep
+
+
+@dataclass
+class RandomPruning(Strategy):
+    """Keep N_tar (ctx.n_target) candidates drawn uniformly at random, without replacement."""
+
+    description: ClassVar[str] = "chance baseline: a uniformly random subset of the candidates at the same N_tar"
+
+    def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
+        n = len(ctx.gaussians)
+        # one generator per prune call on the CPU, so the draw does not depend on the device or on earlier calls
+        gen = torch.Generator(device="cpu").manual_seed(ctx.seed * 1_000_003 + ctx.keyframe_index)
+        score = torch.rand(n, generator=gen).to(ctx.candidates.device)  # [N] iid uniform: top-k of it is uniform
+        return top_k_keep(score, ctx.candidates, ctx.n_target)
