@@ -38,6 +38,7 @@ from bench.report.figures.pruned_run import PruneViz
 from bench.run import checkpoint as ckpt
 from bench.run import evaluation, job_outputs, loop, provenance
 from bench.run.determinism import repeatable
+from bench.run.lock import run_dir_lock
 from bench.run.loop import TRAJ_EST, flushed_rows
 from bench.run.record import RunRecord, is_leftover, owner, promote, read_record, record_refusal, write_text
 from bench.run.resume import redo_reason
@@ -106,9 +107,16 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
             built = validate(cfg)
     except ConfigError as exc:  # in a sweep the job is recorded; a single run was refused by the CLI already
         make_out_dir(out)
-        return _refused(out, str(exc), run_keys(cfg), task_cfg=cfg)
-    conf = built.config  # below here only dataclasses travel
+        with run_dir_lock(out):
+            return _refused(out, str(exc), run_keys(cfg), task_cfg=cfg)
     make_out_dir(out)
+    with run_dir_lock(out):  # one writer per run dir, for the run's whole life: a live one refuses this one
+        return _run_locked(cfg, out, built)
+
+
+def _run_locked(cfg: DictConfig, out: Path, built: ValidatedRun) -> RunResult:
+    """``run`` past validation, with ``out`` made and its lock held."""
+    conf = built.config  # below here only dataclasses travel
     stored = _previous(out)
     keys = run_keys(conf, built.tree)
     try:

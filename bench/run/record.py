@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from bench.run import job_outputs
+from bench.run.lock import LOCK_FILE
 from bench.schema import METRICS_FILE, REDO_DIR
 
 # statuses a refusal must not replace: finished results, a resumable run, a run that may still be going
@@ -158,6 +159,6 @@ def promote(staged: Path, final: Path) -> None:
             shutil.rmtree(target)
         os.replace(path, target)
     for old in final.iterdir():
-        if old.name not in names and old.name != REDO_DIR:
+        if old.name not in names and old.name not in (REDO_DIR, LOCK_FILE):
             shutil.rmtree(old) if old.is_dir() and not old.is_symlink() else old.unlink()
     staged.rmdir()
