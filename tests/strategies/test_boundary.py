@@ -84,6 +84,19 @@ def test_render_mask_and_loss_shapes_are_checked():
         CheckedStrategy(Returns(torch.ones(3)), "mine").mapping_loss(ctx)
 
 
+@pytest.mark.parametrize("hook", ["cap_score", "render_mask", "mapping_loss"])
+def test_a_score_mask_or_loss_that_is_not_finite_is_a_strategy_error(hook: str) -> None:
+    g = _map(3)
+    ctx = _prune_ctx(g) if hook == "cap_score" else MappingContext(0, 0, g, g.state, True)
+    out = torch.tensor(float("nan")) if hook == "mapping_loss" else torch.tensor([0.5, float("nan"), float("inf")])
+    with pytest.raises(StrategyError) as err:
+        getattr(CheckedStrategy(Returns(out), "mine"), hook)(ctx)
+    found = "1 NaN and 0 infinite of 1" if hook == "mapping_loss" else "1 NaN and 1 infinite of 3"
+    assert str(err.value) == f"strategy 'mine' {hook}: expected finite values, found {found}"
+    finite = torch.tensor(0.5) if hook == "mapping_loss" else torch.tensor([0.5, 0.0, 1.0])
+    assert getattr(CheckedStrategy(Returns(finite), "mine"), hook)(ctx) is finite
+
+
 def test_a_strategy_error_raised_inside_a_hook_gets_the_name():
     class Broken(Strategy):
         def after_mapping(self, ctx):
