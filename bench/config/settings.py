@@ -91,10 +91,22 @@ class Rule:
             ok = ok and not (self.hi is not None and (value > self.hi or (self.hi_open and value == self.hi)))
         ok = ok and (self.choices is None or value in self.choices)
         ok = ok and (self.pattern is None or re.fullmatch(self.pattern, value) is not None)
+        if not ok and self.kind == "float" and isinstance(value, float) and not math.isfinite(value):
+            raise ConfigError(f"{key}: expected a finite number ({self.expected()}), found {value!r}")
         if not ok:
             raise ConfigError(f"{key}: expected {self.expected()}, found {value!r}")
         if self.kind == "path" and not Path(value).expanduser().is_file():
             raise ConfigError(f"{key}: expected an existing file, found no file at {Path(value).expanduser()}")
+
+
+# a name that is one path component: no separator, not . or .. (sweep names: multirun/<name>)
+NAME_PATTERN = r"(?!\.\.?$)[^/\\\x00]+"
+NAME_HINT = "a name (one folder: no '/', not '.' or '..')"
+
+
+def check_folder_name(key: str, value: Any) -> None:
+    """One ``ConfigError`` line unless ``value`` is a name that stays one folder (``NAME_PATTERN``)."""
+    Rule("str", pattern=NAME_PATTERN, hint=NAME_HINT).check(key, value)
 
 
 def _fmt(x: float) -> str:

@@ -34,6 +34,7 @@ from bench.config.identity import run_keys
 from bench.config.settings import plain
 from bench.datasets import FrameSequence
 from bench.errors import BenchError, ConfigError
+from bench.fileio import link_message, planted_links
 from bench.report.figures.pruned_run import PruneViz
 from bench.run import checkpoint as ckpt
 from bench.run import evaluation, job_outputs, loop, provenance
@@ -108,10 +109,21 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
     except ConfigError as exc:  # in a sweep the job is recorded; a single run was refused by the CLI already
         make_out_dir(out)
         with run_dir_lock(out):
+            _refuse_links(out)
             return _refused(out, str(exc), run_keys(cfg), task_cfg=cfg)
     make_out_dir(out)
     with run_dir_lock(out):  # one writer per run dir, for the run's whole life: a live one refuses this one
+        _refuse_links(out)
         return _run_locked(cfg, out, built)
+
+
+def _refuse_links(out: Path) -> None:
+    """A symlink in the run dir (``keyframes.csv`` -> a file elsewhere) is refused before anything is written:
+    the run would write through it (``bench.fileio``)."""
+    links = planted_links(out)
+    if links:
+        more = f" (and {len(links) - 1} more)" if len(links) > 1 else ""
+        raise ConfigError(link_message(links[0]) + more)
 
 
 def _run_locked(cfg: DictConfig, out: Path, built: ValidatedRun) -> RunResult:

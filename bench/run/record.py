@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.fileio import open_nofollow
 from bench.run import job_outputs
 from bench.run.lock import LOCK_FILE
 from bench.schema import METRICS_FILE, REDO_DIR
@@ -34,8 +35,9 @@ def write_json(path: Path, obj: dict[str, Any]) -> None:
 def write_text(path: Path, text: str) -> None:
     """Replace ``path`` by ``text`` atomically; a failed write leaves the old file and no temporary one."""
     tmp = path.with_name(path.name + ".tmp")
+    tmp.unlink(missing_ok=True)  # a leftover (or a link planted there): the temporary file is made new
     try:
-        with open(tmp, "w") as fh:
+        with open_nofollow(tmp, "x") as fh:
             fh.write(text)
             fh.flush()
             os.fsync(fh.fileno())
