@@ -197,9 +197,12 @@ def shared_refusal(fixed: list[str], job: list[str], hyd: list[str]) -> None:
         return None
 
     try:
-        jobs = planned(compose([*fixed, *hyd], hydra=True), job) or [[]]
+        jobs = planned(compose([*fixed, *hyd], hydra=True), job)
     except (HydraException, OmegaConfBaseException, ValueError):
         return  # a sweep syntax of another sweeper's: its jobs are checked where they run
+    if not jobs:  # seed=range(0,0): Hydra would run nothing, silently
+        swept = [o for o in job if o not in fixed]
+        raise ConfigError(f"sweep: expected at least one job, found none ({' '.join(swept) or 'no job'} is empty)")
     first = refusal(jobs[0])
     if first is not None and all(refusal(j) == first for j in jobs[1:]):
         raise ConfigError(first if len(jobs) == 1 else f"{first} (in all {len(jobs)} jobs of the sweep)")
