@@ -96,6 +96,13 @@ def composition_error(exc: Exception, overrides: list[str]) -> str:
 
     if isinstance(exc, MissingConfigException) and exc.missing_cfg_file and "/" in exc.missing_cfg_file:
         group, name = exc.missing_cfg_file.rsplit("/", 1)
+        if group == "strategy" and name in strategy_names():  # installed, but its import failed: say why
+            from bench.slam.strategy import strategy_class
+
+            try:
+                strategy_class(name)
+            except BenchError as failed:
+                return str(failed)
         names = sorted(exc.options or group_files(group))
         return unknown_name_message(group, name, names)
     appended = re.search(r"Could not append to config\. An item is already at '([^']+)'", str(exc))

@@ -53,7 +53,7 @@ def load_labels(path: Path | None) -> Labels:
         return Labels()
     try:
         raw = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:  # missing, binary, not YAML
         raise ReportError(f"cannot read labels file '{path}': {str(exc).splitlines()[0]}") from None
     raw = {} if raw is None else raw
     if not isinstance(raw, dict) or set(raw) - {"methods", "metrics"}:

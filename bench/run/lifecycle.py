@@ -17,6 +17,7 @@ on the frames tracked.
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import time
 from dataclasses import dataclass, field
@@ -227,18 +228,27 @@ def _run_locked(cfg: DictConfig, out: Path, built: ValidatedRun) -> RunResult:
         status, error, metrics = "failed", str(exc), record["metrics"]
     except Exception as exc:  # unexpected: record it so the sweep goes on, then re-raise for the traceback
         behind = signal_behind(exc)  # a stop that a C extension reported as its own error
-        if behind is None:
+        failed_write = write_failure(exc, out)
+        if behind is None and failed_write is None:
             record.close(status="failed", error=f"{type(exc).__name__}: {exc}".splitlines()[0])
             raise
-        n_done = record["metrics"].get("num_frames", 0)
-        status, error, metrics, stop = "interrupted", f"{behind} after {n_done} frames", record["metrics"], behind
+        if behind is None:  # a full disk, a dir made read-only: the run's own files cannot be written
+            status, error, metrics = "failed", str(failed_write), record["metrics"]
+        else:
+            n_done = record["metrics"].get("num_frames", 0)
+            status, error, metrics, stop = "interrupted", f"{behind} after {n_done} frames", record["metrics"], behind
     with deferred_signals():  # a second Ctrl-C must not cut the record in half
-        record.close(status=status, error=error, metrics=metrics)
-        if status != "interrupted":
-            ckpt.remove(out)  # finished (or failed on its data): a rerun never resumes it
-            if out != final and status in schema.FINISHED:
-                promote(out, final)  # only a redo that finishes replaces the finished record
-                out = final
+        try:
+            record.close(status=status, error=error, metrics=metrics)
+            if status != "interrupted":
+                ckpt.remove(out)  # finished (or failed on its data): a rerun never resumes it
+                if out != final and status in schema.FINISHED:
+                    promote(out, final)  # only a redo that finishes replaces the finished record
+                    out = final
+        except OSError as exc:  # the record itself cannot be written (the same full disk or read-only dir)
+            if write_failure(exc, out) is None:
+                raise
+            status, error = "failed", f"{error or status}; {write_failure(exc, out)} (metrics.json not updated)"
     if stop is not None:
         if preempt.signum is not None and preempt.signum == stop.signum:
             log.warning(
@@ -249,6 +259,18 @@ def _run_locked(cfg: DictConfig, out: Path, built: ValidatedRun) -> RunResult:
             preempt.hand_over()  # the launcher's own handler (submitit: requeue, then exit)
         raise Interrupted(stop.signum, f"{error}; partial results in {out}")
     return RunResult(status, out, metrics, error)
+
+
+WRITE_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG)
+
+
+def write_failure(exc: BaseException, out: Path) -> BenchError | None:
+    """A file system refusing the run's writes (``WRITE_ERRNOS``: full, read-only, no permission) as one line;
+    None for any other error (a bug, which keeps its traceback)."""
+    if not isinstance(exc, OSError) or exc.errno not in WRITE_ERRNOS:
+        return None
+    where = exc.filename if exc.filename else "its files"
+    return BenchError(f"run dir {out}: expected to write {where}, found: {exc.strerror or exc}")
 
 
 def _refused(
