@@ -90,7 +90,7 @@ def make_report(
     usable run is found. ``out`` is replaced as a unit (``bench.report.swap``): a report stopped part-way
     leaves it as it was."""
     labels = labels or Labels()
-    with use_method_names(labels.methods), built_beside(Path(out)) as work:
+    with use_method_names(labels.methods), built_beside(Path(out), run_dirs) as work:
         result = _make_report(run_dirs, work, paper, baseline, formats, dpi, labels.metrics)
     result.out, result.files = Path(out), [Path(out) / f.relative_to(work) for f in result.files]
     return result

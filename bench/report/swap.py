@@ -21,7 +21,7 @@ import errno
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 from bench.errors import ReportError
@@ -33,12 +33,20 @@ _RENAME_EXCHANGE = 2  # linux/fs.h
 
 
 @contextlib.contextmanager
-def built_beside(out: Path) -> Iterator[Path]:
+def built_beside(out: Path, inputs: Sequence[Path] = ()) -> Iterator[Path]:
     """Yield an empty temporary folder beside ``out`` to write the report into; when the block ends without an
-    exception it replaces ``out`` as a unit, else it is removed and ``out`` stays as it was."""
+    exception it replaces ``out`` as a unit, else it is removed and ``out`` stays as it was. ``out`` may not
+    hold any of ``inputs`` (the run dirs read) nor the current dir: replacing it would move them."""
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ReportError(f"expected an output dir, found the file '{out}'")
+    where = out.resolve()
+    for inside in (Path.cwd(), *inputs):
+        if where == Path(inside).resolve() or where in Path(inside).resolve().parents:
+            raise ReportError(
+                f"--out: expected a report folder apart from the run dirs and the current dir, found '{out}' "
+                f"holding '{inside}'"
+            )
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         _remove_leftovers(out)

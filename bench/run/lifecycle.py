@@ -261,7 +261,8 @@ def _run_locked(cfg: DictConfig, out: Path, built: ValidatedRun) -> RunResult:
     return RunResult(status, out, metrics, error)
 
 
-WRITE_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG)
+# the file system refusing a run's writes: full, read-only, no permission, too big, a directory in a file's place
+WRITE_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG, errno.EISDIR)
 
 
 def write_failure(exc: BaseException, out: Path) -> BenchError | None:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import fcntl
+import logging
 import os
 import socket
 from collections.abc import Iterator
@@ -22,6 +23,7 @@ from pathlib import Path
 from bench.errors import RunDirBusy
 
 LOCK_FILE = ".pocketbench.lock"
+log = logging.getLogger(__name__)
 
 
 @contextlib.contextmanager
@@ -30,6 +32,10 @@ def run_dir_lock(out: Path) -> Iterator[None]:
     holds it. ``out`` must exist."""
     path = out / LOCK_FILE
     fd = _acquire(path)
+    if fd is None:  # a file system without flock (some network mounts): the run goes on unguarded, said once
+        log.warning("%s: the file system cannot lock it; nothing stops a second run writing there at once", out)
+        yield
+        return
     try:
         os.ftruncate(fd, 0)
         os.write(fd, f"{os.getpid()} {socket.gethostname()}\n".encode())
@@ -40,7 +46,7 @@ def run_dir_lock(out: Path) -> Iterator[None]:
         os.close(fd)
 
 
-def _acquire(path: Path) -> int:
+def _acquire(path: Path) -> int | None:
     for _ in range(10):  # a holder may remove the file between our open and our flock: then open the new one
         try:
             fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
@@ -50,7 +56,12 @@ def _acquire(path: Path) -> int:
             raise RunDirBusy(f"run dir lock: expected a writable {path}, found: {exc.strerror or exc}") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+        except OSError as exc:
+            if not isinstance(exc, BlockingIOError):  # ENOLCK, EOPNOTSUPP: no locks here at all
+                os.close(fd)
+                with contextlib.suppress(OSError):
+                    path.unlink()
+                return None
             holder = _holder(fd)
             os.close(fd)
             raise RunDirBusy(

@@ -188,9 +188,15 @@ class Strategy:
 
 
 def top_k_keep(score: torch.Tensor, candidates: torch.Tensor, k: int) -> torch.Tensor:
-    """Keep all non-candidates plus the ``k`` best-scoring candidates (the shared global rule)."""
+    """Keep all non-candidates plus the ``k`` best-scoring candidates (the shared global rule).
+
+    A NaN among the candidates' scores has no rank (``topk`` would keep an arbitrary set): a ``StrategyError``.
+    """
     keep = ~candidates
     idx = candidates.nonzero().flatten()
+    n_nan = int(torch.isnan(score[idx]).sum()) if idx.numel() and score.is_floating_point() else 0
+    if n_nan:
+        raise StrategyError(f"top_k_keep: expected scores to rank, found {n_nan} NaN of {idx.numel()} candidates")
     if idx.numel() and k > 0:
         best = idx[torch.topk(score[idx], min(k, idx.numel())).indices]
         keep = keep.clone()

@@ -129,7 +129,9 @@ def expand(study: Study, extra: Sequence[str] = ()) -> list[tuple[str, list[str]
                 f"study '{study.name}' sweep '{sweep}': expected overrides as on a command line, found: {found}"
             ) from None
         for job in BasicSweeper.split_arguments(parsed, None)[0]:
-            jobs.append((next(o.split("=", 1)[1] for o in job if o.startswith("sweep_name=")), job))
+            name = next(o.split("=", 1)[1] for o in job if o.startswith("sweep_name="))
+            check_folder_name(f"study '{study.name}' sweep '{sweep}' sweep_name", name)  # an override may set it
+            jobs.append((name, job))
     return jobs
 
 

@@ -97,6 +97,22 @@ def test_a_score_mask_or_loss_that_is_not_finite_is_a_strategy_error(hook: str) 
     assert getattr(CheckedStrategy(Returns(finite), "mine"), hook)(ctx) is finite
 
 
+def test_nan_scores_ranked_by_top_k_keep_are_a_strategy_error_naming_the_strategy() -> None:
+    from bench.slam.strategy import top_k_keep
+
+    class NanScores(Strategy):
+        def after_mapping(self, ctx):
+            score = torch.tensor([0.3, float("nan"), 0.1, 0.2, float("nan")])  # [N]
+            return top_k_keep(score, ctx.candidates, 2)
+
+    with pytest.raises(StrategyError) as err:
+        CheckedStrategy(NanScores(), "nans").after_mapping(_prune_ctx(_map(5)))
+    assert (
+        str(err.value)
+        == "strategy 'nans' after_mapping: top_k_keep: expected scores to rank, found 2 NaN of 5 candidates"
+    )
+
+
 def test_a_strategy_error_raised_inside_a_hook_gets_the_name():
     class Broken(Strategy):
         def after_mapping(self, ctx):
