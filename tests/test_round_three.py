@@ -43,12 +43,14 @@ def test_a_report_out_that_holds_the_run_dirs_is_refused(where: str, tmp_path: P
     assert sorted(p.name for p in (runs / "a").iterdir()) == sorted(p.name for p in (runs / "b").iterdir())
 
 
-def test_a_directory_where_a_run_file_goes_is_one_line(tmp_path: Path) -> None:
+@pytest.mark.parametrize("name", ["metrics.json", "config.yaml", "keyframes.csv", "map.ply"])
+def test_a_directory_where_the_record_or_the_map_goes_is_refused_before_any_work(name: str, tmp_path: Path) -> None:
     run_dir = tmp_path / "run"
-    (run_dir / "keyframes.csv").mkdir(parents=True)
+    (run_dir / name).mkdir(parents=True)
     got = run_cli([*Q, f"hydra.run.dir={run_dir}"])
     assert got.code == 2
-    assert got.error_line.startswith(f"error: run dir {run_dir}: expected to write {run_dir / 'keyframes.csv'}")
+    assert got.error_line == f"error: run dir {run_dir}: expected {name} to be a file or nothing, found a directory"
+    assert sorted(p.name for p in run_dir.iterdir()) == [name]
 
 
 def test_a_file_system_without_locks_runs_unguarded_with_a_warning(tmp_path: Path, monkeypatch, caplog) -> None:

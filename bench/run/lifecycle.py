@@ -40,6 +40,7 @@ from bench.report.figures.pruned_run import PruneViz
 from bench.run import checkpoint as ckpt
 from bench.run import evaluation, job_outputs, loop, provenance
 from bench.run.determinism import repeatable
+from bench.run.export import MAP_FILE
 from bench.run.lock import run_dir_lock
 from bench.run.loop import TRAJ_EST, flushed_rows
 from bench.run.record import RunRecord, is_leftover, owner, promote, read_record, record_refusal, write_text
@@ -118,13 +119,20 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
         return _run_locked(cfg, out, built)
 
 
+# files a run writes at the top of its dir: a directory in one's place is refused before any work
+RUN_FILES = (schema.METRICS_FILE, "config.yaml", TRAJ_EST, schema.KEYFRAMES_FILE, MAP_FILE)
+
+
 def _refuse_links(out: Path) -> None:
     """A symlink in the run dir (``keyframes.csv`` -> a file elsewhere) is refused before anything is written:
-    the run would write through it (``bench.fileio``)."""
+    the run would write through it (``bench.fileio``); so is a directory where a run file goes."""
     links = planted_links(out)
     if links:
         more = f" (and {len(links) - 1} more)" if len(links) > 1 else ""
         raise ConfigError(link_message(links[0]) + more)
+    in_the_way = [name for name in RUN_FILES if (out / name).is_dir()]
+    if in_the_way:
+        raise ConfigError(f"run dir {out}: expected {in_the_way[0]} to be a file or nothing, found a directory")
 
 
 def _run_locked(cfg: DictConfig, out: Path, built: ValidatedRun) -> RunResult:
