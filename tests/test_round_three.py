@@ -78,3 +78,20 @@ def test_a_png_with_bytes_after_its_end_is_still_read(tmp_path: Path) -> None:
     cv2.imwrite(str(path), np.full((8, 8), 7, np.uint8))
     path.write_bytes(path.read_bytes() + b"\0" * 300)  # some writers pad a file
     assert read_image(path, "kitti", "gray").mean() == 7
+
+
+def test_a_strategy_setting_without_a_strategy_is_one_line(tmp_path: Path) -> None:
+    got = run_cli([*Q, "+strategy.params.area=analytic", f"hydra.run.dir={tmp_path / 'run'}"])
+    assert got.code == 2
+    assert got.error_line == (
+        "error: strategy.params.area: expected +strategy=NAME first (strategy is not chosen, so it has no settings), "
+        "found +strategy.params.area=analytic"
+    )
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_swept_strategy_setting_without_a_strategy_is_recorded_per_job(tmp_path: Path) -> None:
+    sweep = tmp_path / "sweep"
+    got = run_cli(["-m", *Q, "strategy.params.area=analytic,x", f"hydra.sweep.dir={sweep}"])
+    assert got.code == 0, got.stderr
+    assert "2 jobs: 2 failed" in (sweep / "summary.md").read_text()

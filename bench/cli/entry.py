@@ -80,7 +80,7 @@ def precheck(argv: list[str]) -> ValidatedRun | None:
             parsed = OverridesParser.create().parse_overrides(job)
             job = [o.input_line for o in parsed if not o.is_sweep_override() and o.input_line is not None]
         cfg = compose(job)
-    except (HydraException, OmegaConfBaseException) as exc:
+    except (HydraException, OmegaConfBaseException, AssertionError) as exc:  # AssertionError: OmegaConf's, on null
         raise ConfigError(composition_error(exc, job)) from None
     if multirun:
         shared_refusal(job, swept, hyd)

@@ -89,7 +89,7 @@ class BenchSweeper(BasicSweeper):
         try:
             self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
             return True
-        except (HydraException, OmegaConfBaseException) as exc:
+        except (HydraException, OmegaConfBaseException, AssertionError) as exc:  # AssertionError: OmegaConf's
             message = composition_error(exc, list(overrides))
         log.info("\t#%d : %s", job_idx, " ".join(overrides))
         out = job_dir(self.config, overrides, job_idx)
