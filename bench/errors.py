@@ -35,6 +35,10 @@ class ReportError(BenchError):
     """Report inputs are missing or malformed (no run dirs, bad metrics.json, bad arguments)."""
 
 
+class RunDirBusy(BenchError):
+    """Another live process writes the run dir (it holds the dir's lock); nothing is written."""
+
+
 class TrackingLost(BenchError):
     """Tracking diverged; the run ends with status ``lost`` and keeps its partial results."""
 

@@ -112,10 +112,13 @@ def _own_copy(root: Path, path: Path) -> Path:
     return path
 
 
-def _open(dataset: str, root: Path, seq: str) -> None:
+def _open(dataset: str, root: Path, seq: str, read: int = 0) -> None:
+    """Open the sequence, then read its first ``read`` frames as a run does."""
     overrides = [f"dataset={dataset}", f"seq={seq}", f"dataset.root={root}"]
     overrides += [] if dataset in ("tum", "sevenscenes") else ["dataset.cache_dir=null"]
-    open_seq(to_run_config(cli.compose(overrides)))
+    sequence = open_seq(to_run_config(cli.compose(overrides)))
+    for i in range(min(read, len(sequence))):
+        sequence[i]
 
 
 @pytest.mark.parametrize("name", sorted(CASES))
@@ -155,3 +158,57 @@ def test_the_synthetic_route_file_refuses_what_it_cannot_drive(text: str, says: 
     with pytest.raises(DatasetError) as err:
         open_seq(to_run_config(cli.compose(["+experiment=tiny", f"dataset.route_file={route}"])))
     assert says in str(err.value)
+
+
+# ------------------------------------------------------------------ images checked for what they are (issue 62, H)
+def _sixteen_bit(path: Path) -> None:
+    """The frame written again as a 16-bit PNG of the same 8-bit values (as a careless export does)."""
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    path.unlink()
+    assert cv2.imwrite(str(path), img.astype("uint16"))
+
+
+def _eight_bit(path: Path) -> None:
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    path.unlink()
+    assert cv2.imwrite(str(path), (img // 256).astype("uint8"))
+
+
+def _cut(path: Path) -> None:
+    """The file cut to its first third (a copy interrupted)."""
+    data = path.read_bytes()
+    path.unlink()
+    path.write_bytes(data[: len(data) // 3])
+
+
+IMAGE_CASES: dict[str, tuple[str, str, Callable[[Path], None], str]] = {
+    "kitti-frame-16-bit": ("kitti", f"{KITTI}/image_0/000002.png", _sixteen_bit, "expected an 8-bit png, found a 16"),
+    "kitti-frame-cut": ("kitti", f"{KITTI}/image_1/000002.png", _cut, "expected a whole png, found one cut short"),
+    "euroc-frame-cut": ("euroc", "V1_01_micro/mav0/cam0/data/1403715273312143104.png", _cut, "found one cut short"),
+    "sevenscenes-colour-cut": ("sevenscenes", "seq/frame-000002.color.jpg", _cut, "expected a whole jpeg"),
+    "sevenscenes-depth-8-bit": ("sevenscenes", "seq/frame-000002.depth.png", _eight_bit, "found an 8-bit gray png"),
+    "tum-colour-cut": ("tum", f"{TUM}/rgb/FIRST", _cut, "found one cut short"),
+}
+# checked when the sequence is opened (datasets/sevenscenes/README.md); the others when the frame is read
+AT_OPEN = ("sevenscenes-colour-cut", "sevenscenes-depth-8-bit")
+
+
+@pytest.mark.parametrize("name", sorted(IMAGE_CASES))
+def test_an_image_of_the_wrong_bit_depth_or_cut_short_is_refused(
+    name: str, tmp_path: Path, request: pytest.FixtureRequest
+) -> None:
+    dataset, rel, spoil, says = IMAGE_CASES[name]
+    root, seq = _root(dataset, tmp_path, request)
+    if rel.endswith("FIRST"):  # the first colour frame of the sequence, whatever its name
+        rel = str(min((root / rel).parent.iterdir()).relative_to(root))
+    path = _own_copy(root, root / rel)
+    _open(dataset, root, seq, read=4)  # intact: opens and reads
+    spoil(path)
+    with pytest.raises(DatasetError) as err:  # at open, or when the frame is read, as the run reads it
+        _open(dataset, root, seq, read=0 if name in AT_OPEN else 4)
+    message = str(err.value)
+    assert says in message and str(path.name) in message and "\n" not in message, message

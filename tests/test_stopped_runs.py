@@ -112,11 +112,11 @@ def test_killed_run_is_reported_interrupted_by_the_next_run(tmp_path: Path) -> N
 
 
 def _tree(run_dir: Path) -> dict[str, bytes]:
-    """Every file of the run dir but a redo's staging dir, by path."""
+    """Every file of the run dir but a redo's staging dir and the lock of the process at work there, by path."""
     return {
         str(p.relative_to(run_dir)): p.read_bytes()
         for p in sorted(run_dir.rglob("*"))
-        if p.is_file() and ".redo" not in p.relative_to(run_dir).parts
+        if p.is_file() and ".redo" not in p.relative_to(run_dir).parts and p.name != ".pocketbench.lock"
     }
 
 

@@ -96,8 +96,17 @@ def composition_error(exc: Exception, overrides: list[str]) -> str:
 
     if isinstance(exc, MissingConfigException) and exc.missing_cfg_file and "/" in exc.missing_cfg_file:
         group, name = exc.missing_cfg_file.rsplit("/", 1)
+        if group == "strategy" and name in strategy_names():  # installed, but its import failed: say why
+            from bench.slam.strategy import strategy_class
+
+            try:
+                strategy_class(name)
+            except BenchError as failed:
+                return str(failed)
         names = sorted(exc.options or group_files(group))
         return unknown_name_message(group, name, names)
+    if isinstance(exc, AssertionError):  # OmegaConf 2.3 asserts on a.b=... where a is null (no +strategy)
+        return _unset_group(overrides) or f"expected overrides that compose, found: {exc}"
     appended = re.search(r"Could not append to config\. An item is already at '([^']+)'", str(exc))
     if appended:  # +KEY=VALUE on an existing KEY
         return _append_error(appended[1], overrides)
@@ -129,6 +138,21 @@ def composition_error(exc: Exception, overrides: list[str]) -> str:
         named = _strategy_param(key, overrides)
         return f"{named or key}: expected {what}, found {conv[1]!r}"
     return f"{key}: {first[:1].lower()}{first[1:]}" if key else first
+
+
+def _unset_group(overrides: list[str]) -> str | None:
+    """``strategy.params.X=...`` with no strategy chosen: the key, and the group to choose first."""
+    plain_keys = [o for o in overrides if "." not in o.lstrip("+~").split("=", 1)[0]]
+    try:
+        base = compose(plain_keys)
+    except Exception:  # the rest does not compose either: its own error comes once this one is fixed
+        return None
+    for o in overrides:
+        key = o.lstrip("+~").split("=", 1)[0]
+        group = key.split(".", 1)[0]
+        if "." in key and group in base and base[group] is None:
+            return f"{key}: expected +{group}=NAME first ({group} is not chosen, so it has no settings), found {o}"
+    return None
 
 
 def _append_error(key: str, overrides: list[str]) -> str:
@@ -190,16 +214,19 @@ def shared_refusal(fixed: list[str], job: list[str], hyd: list[str]) -> None:
         task = [o for o in overrides if not o.lstrip("+~").startswith("hydra")]
         try:
             validate(compose(task))
-        except (HydraException, OmegaConfBaseException) as exc:
+        except (HydraException, OmegaConfBaseException, AssertionError) as exc:
             return composition_error(exc, task)
         except BenchError as exc:
             return str(exc)
         return None
 
     try:
-        jobs = planned(compose([*fixed, *hyd], hydra=True), job) or [[]]
+        jobs = planned(compose([*fixed, *hyd], hydra=True), job)
     except (HydraException, OmegaConfBaseException, ValueError):
         return  # a sweep syntax of another sweeper's: its jobs are checked where they run
+    if not jobs:  # seed=range(0,0): Hydra would run nothing, silently
+        swept = [o for o in job if o not in fixed]
+        raise ConfigError(f"sweep: expected at least one job, found none ({' '.join(swept) or 'no job'} is empty)")
     first = refusal(jobs[0])
     if first is not None and all(refusal(j) == first for j in jobs[1:]):
         raise ConfigError(first if len(jobs) == 1 else f"{first} (in all {len(jobs)} jobs of the sweep)")

@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import sys
 import time
+import traceback
 import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -79,7 +80,7 @@ def precheck(argv: list[str]) -> ValidatedRun | None:
             parsed = OverridesParser.create().parse_overrides(job)
             job = [o.input_line for o in parsed if not o.is_sweep_override() and o.input_line is not None]
         cfg = compose(job)
-    except (HydraException, OmegaConfBaseException) as exc:
+    except (HydraException, OmegaConfBaseException, AssertionError) as exc:  # AssertionError: OmegaConf's, on null
         raise ConfigError(composition_error(exc, job)) from None
     if multirun:
         shared_refusal(job, swept, hyd)
@@ -112,6 +113,14 @@ def _hydra_main(cfg: DictConfig) -> None:
             _record(hc, "failed", hc.runtime.output_dir, {}, time.perf_counter() - t0)
             return
         sys.exit(EXIT_CONFIG)
+    except Exception as exc:  # a bug: its traceback stays; in a sweep the job is recorded failed and the sweep goes on
+        if not multirun:
+            raise
+        traceback.print_exc()
+        reason = f"{type(exc).__name__}: {exc}".splitlines()[0]
+        print(f"error: job {hc.job.num} raised {reason} (a bug; traceback above); the sweep goes on", file=sys.stderr)
+        _record(hc, "failed", cfg.out_dir or hc.runtime.output_dir, {}, time.perf_counter() - t0)
+        return
     wall_s = None if result.skipped else time.perf_counter() - t0
     if result.status == "failed":
         print(f"error: {result.error}", file=sys.stderr)

@@ -13,10 +13,19 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from bench.config.compose import EvalConfig, MemoryConfig, RunConfig, VizConfig, to_run_config
+from bench.config.compose import (
+    EvalConfig,
+    MemoryConfig,
+    RunConfig,
+    StrategyConfig,
+    VizConfig,
+    dataset_schemas,
+    to_run_config,
+)
 from bench.config.settings import check_rules, plain, unknown_keys
 from bench.errors import BenchError, ConfigError
 from bench.run.checkpoint import CheckpointConfig
+from bench.slam.config import SlamConfig
 from bench.slam.strategy import CheckedStrategy, PruneConfig, load_strategy, strategy_class, unknown_params
 
 
@@ -45,6 +54,7 @@ def validate(cfg: Any) -> ValidatedRun:
         )
     check_rules(tree, "", RunConfig)  # the run's own settings first: a dataset setting may interpolate one
     for group, cls in (
+        ("slam", SlamConfig),
         ("prune", PruneConfig),
         ("memory", MemoryConfig),
         ("eval", EvalConfig),
@@ -52,15 +62,20 @@ def validate(cfg: Any) -> ValidatedRun:
         ("checkpoint", CheckpointConfig),
     ):
         if isinstance(tree.get(group), Mapping):  # +eval.evry=2 got past composition: say it in these words
-            unknown_keys(group, cls, tree[group])
+            unknown_keys(group, cls, tree[group], deep=True)
     ds = tree.get("dataset")
     if not isinstance(ds, Mapping) or not ds.get("name"):
         raise ConfigError(
             f"dataset: expected a dataset group with a name (dataset=synthetic|kitti|euroc|tum), found {ds!r}"
         )
+    ds_schema = dataset_schemas().get(str(ds["name"]))
+    if ds_schema is not None:  # a plugin's plain dict has no schema to hold it to
+        unknown_keys("dataset", ds_schema, ds, deep=True)
     strategy = tree.get("strategy")
     if strategy is not None and (not isinstance(strategy, Mapping) or not isinstance(strategy.get("name"), str)):
         raise ConfigError(f"strategy: expected a group with a name (+strategy=NAME), found {strategy!r}")
+    if strategy is not None:
+        unknown_keys("strategy", StrategyConfig, strategy)  # its params are the strategy's own: below
     name = strategy["name"] if strategy else "none"
     unknown_params(name, strategy_class(name), (strategy or {}).get("params") or {})
     conf = to_run_config(cfg)  # every rule of every group runs here, the strategy's own checks included

@@ -21,7 +21,7 @@ from omegaconf import MISSING, DictConfig, OmegaConf
 
 from bench.conf import CONF_DIR, group_files
 from bench.config import plugins as registry
-from bench.config.settings import SEED_MAX, as_config, check_rules, setting
+from bench.config.settings import NAME_HINT, NAME_PATTERN, SEED_MAX, as_config, check_rules, setting
 from bench.config.settings import expected as expected_in
 from bench.datasets import GROUP as DATASET_GROUP
 from bench.datasets import schema
@@ -134,7 +134,7 @@ class RunConfig:
     resume: bool = True  # skip a finished run of the same config, code and inputs; continue an interrupted one
     checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)  # bench/run/checkpoint.py
     out_dir: str | None = setting(None, "str", nullable=True)  # None = Hydra's output dir
-    sweep_name: str = setting("default", "str")  # multirun/<sweep_name>
+    sweep_name: str = setting("default", "str", pattern=NAME_PATTERN, hint=NAME_HINT)  # multirun/<sweep_name>
 
     def __post_init__(self) -> None:
         check_rules(self, "")

@@ -12,6 +12,7 @@ config classes of the SLAM backend, the datasets and the run can all use it with
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import re
 import types
@@ -90,10 +91,22 @@ class Rule:
             ok = ok and not (self.hi is not None and (value > self.hi or (self.hi_open and value == self.hi)))
         ok = ok and (self.choices is None or value in self.choices)
         ok = ok and (self.pattern is None or re.fullmatch(self.pattern, value) is not None)
+        if not ok and self.kind == "float" and isinstance(value, float) and not math.isfinite(value):
+            raise ConfigError(f"{key}: expected a finite number ({self.expected()}), found {value!r}")
         if not ok:
             raise ConfigError(f"{key}: expected {self.expected()}, found {value!r}")
         if self.kind == "path" and not Path(value).expanduser().is_file():
             raise ConfigError(f"{key}: expected an existing file, found no file at {Path(value).expanduser()}")
+
+
+# a name that is one path component: no separator, not . or .. (sweep names: multirun/<name>)
+NAME_PATTERN = r"(?!\.\.?$)[^/\\\x00]+"
+NAME_HINT = "a name (one folder: no '/', not '.' or '..')"
+
+
+def check_folder_name(key: str, value: Any) -> None:
+    """One ``ConfigError`` line unless ``value`` is a name that stays one folder (``NAME_PATTERN``)."""
+    Rule("str", pattern=NAME_PATTERN, hint=NAME_HINT).check(key, value)
 
 
 def _fmt(x: float) -> str:
@@ -194,15 +207,40 @@ def check_types(prefix: str, cls: type, values: Mapping[str, Any]) -> None:
             raise ConfigError(f"{prefix}{name}: expected {type_name(tp)}, found {value!r}")
 
 
-def unknown_keys(prefix: str, cls: type, values: Mapping[str, Any]) -> None:
-    """``ConfigError`` naming the keys of ``values`` that the dataclass ``cls`` has no field for."""
+def did_you_mean(name: str, names: typing.Iterable[str]) -> str:
+    """``; did you mean 'X'?`` for the known name closest to ``name``, or nothing when none is close."""
+    close = difflib.get_close_matches(name, sorted(names), n=1, cutoff=0.6)
+    return f"; did you mean '{close[0]}'?" if close else ""
+
+
+def unknown_keys(prefix: str, cls: type, values: Mapping[str, Any], deep: bool = False) -> None:
+    """``ConfigError`` naming the keys of ``values`` that the dataclass ``cls`` has no field for, with the
+    closest known name; ``deep``: in the values of its dataclass-typed fields too (``slam.lrs``), as a ``+KEY``
+    added under a typed group gets past composition."""
     fields = {f.name for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(values) - fields)
     if unknown:
         raise ConfigError(
             f"{prefix} has no setting {', '.join(repr(u) for u in unknown)}; expected one of: "
-            f"{', '.join(sorted(fields)) or '(none)'}"
+            f"{', '.join(sorted(fields)) or '(none)'}{did_you_mean(unknown[0], fields)}"
         )
+    if not deep:
+        return
+    try:
+        hints = typing.get_type_hints(cls)
+    except (NameError, TypeError):  # an annotation this module cannot resolve: the fields' own checks remain
+        return
+    for name, value in values.items():
+        sub = _dataclass_in(hints.get(name))
+        if sub is not None and isinstance(value, Mapping):
+            unknown_keys(f"{prefix}.{name}", sub, value, deep=True)
+
+
+def _dataclass_in(hint: Any) -> type | None:
+    """The dataclass a field's annotation names (``X`` or ``X | None``), else None."""
+    if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+        return hint
+    return next((a for a in typing.get_args(hint) if isinstance(a, type) and dataclasses.is_dataclass(a)), None)
 
 
 def describe_error(exc: OmegaConfBaseException, prefix: str = "") -> str:

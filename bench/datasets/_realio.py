@@ -77,6 +77,7 @@ def read_image(path: Path, dataset: str, mode: str) -> np.ndarray:
     }[mode]
     if not path.is_file():
         raise DatasetError(f"{dataset} image missing: expected a file at {path}, found nothing")
+    check_image_file(path, dataset, 8 if mode != "unchanged" else None)
     img = cv2.imread(str(path), flags)
     if img is None or img.size == 0:
         raise DatasetError(
@@ -84,6 +85,45 @@ def read_image(path: Path, dataset: str, mode: str) -> np.ndarray:
             f"found {path.stat().st_size} bytes opencv cannot decode"
         )
     return img
+
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+JPEG_START, JPEG_END = b"\xff\xd8", b"\xff\xd9"
+_PNG_KINDS = {0: "gray", 2: "rgb", 3: "palette", 4: "gray+alpha", 6: "rgba"}  # IHDR colour type
+_TAIL_BYTES = 4096  # where a whole file's end marker must be (a file may carry a few bytes after its end)
+
+
+def png_header(path: Path) -> tuple[int, str] | None:
+    """``(bit depth, kind)`` from a PNG's IHDR chunk (kind: gray, rgb, ...), or None for a file that is not a PNG."""
+    with open(path, "rb") as fh:
+        head = fh.read(26)
+    if len(head) < 26 or not head.startswith(PNG_SIGNATURE) or head[12:16] != b"IHDR":
+        return None
+    return head[24], _PNG_KINDS.get(head[25], f"colour type {head[25]}")
+
+
+def png_kind(bits: int, kind: str = "") -> str:
+    """``an 8-bit gray png``, ``a 16-bit png``: a PNG's sample depth (and kind) as a message names it."""
+    article = "an" if bits in (8, 11, 18) else "a"
+    return f"{article} {bits}-bit {kind + ' ' if kind else ''}png"
+
+
+def check_image_file(path: Path, dataset: str, bits: int | None = None) -> None:
+    """Refuse, from the file's bytes and without decoding it, a PNG or JPEG cut short (no end chunk or marker),
+    and, with ``bits``, a PNG whose samples are deeper than ``bits`` (a 16-bit PNG where 8-bit frames are
+    expected: decoded to 8 bits it reads as a near-black frame). Other formats are left to the decoder."""
+    with open(path, "rb") as fh:
+        head = fh.read(2)
+        fh.seek(max(0, path.stat().st_size - _TAIL_BYTES))
+        tail = fh.read()
+    header = png_header(path)
+    if header is not None:
+        if b"IEND" not in tail:
+            raise DatasetError(f"{dataset} image {path}: expected a whole png, found one cut short (no IEND chunk)")
+        if bits is not None and header[0] > bits:
+            raise DatasetError(f"{dataset} image {path}: expected {png_kind(bits)}, found {png_kind(*header)}")
+    elif head == JPEG_START and JPEG_END not in tail:
+        raise DatasetError(f"{dataset} image {path}: expected a whole jpeg, found one cut short (no end marker)")
 
 
 def check_size(img: np.ndarray, path: Path, width: int, height: int, dataset: str) -> None:

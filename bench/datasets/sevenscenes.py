@@ -197,12 +197,18 @@ class SevenScenesSequence(TumSequence):
 
 
 def check_sizes(seq: SevenScenesSequence) -> None:
-    """Every colour and depth image's size from its header, at open rather than mid-run; the first depth fully."""
+    """Every colour and depth image's size from its header, at open rather than mid-run, and from its bytes
+    that it is whole and of the bit depth expected (every depth a 16-bit gray png); the first depth fully."""
     from PIL import Image, UnidentifiedImageError
 
-    seq.raw_depth(0)  # its bit depth, too
+    seq.raw_depth(0)
     for what, paths in (("colour", seq.rgb_paths), ("depth", seq.depth_paths)):
         for path in paths:
+            realio.check_image_file(path, DATASET, 8 if what == "colour" else None)
+            header = realio.png_header(path) if what == "depth" else (16, "gray")
+            if header != (16, "gray"):
+                found = realio.png_kind(*header) if header else "no png"
+                raise DatasetError(f"{DATASET} depth image {path}: expected a 16-bit single-channel png, found {found}")
             try:
                 with Image.open(path) as img:
                     width, height = img.size

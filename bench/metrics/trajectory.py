@@ -24,6 +24,7 @@ from evo.core.transformations import quaternion_from_matrix
 
 from bench.datasets.timestamp_order import order_problem
 from bench.errors import MetricError
+from bench.fileio import open_nofollow
 
 ALIGNMENTS = ("se3", "sim3", "none")
 MIN_POSES = 3  # Umeyama needs 3 non-collinear points; fewer is not a trajectory error
@@ -153,7 +154,7 @@ class TumAppender:
     def __init__(self, path: str | Path, append: bool = False) -> None:
         """``append``: continue a file this class wrote (a resumed run), without a second header."""
         self.path = Path(path)
-        self._fh = self.path.open("a" if append else "w")
+        self._fh = open_nofollow(self.path, "a" if append else "w")
         if not append:
             self._fh.write(TUM_HEADER)
         self._sync()

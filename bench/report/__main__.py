@@ -16,6 +16,7 @@ from bench.report import provenance_check
 from bench.report.build import load_labels, make_report, redraw
 from bench.report.collect import collect
 from bench.report.figures.output import DPI, check_figure_options
+from bench.run.signals import Interrupted, raise_on_signals
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -93,7 +94,19 @@ def study_inputs(args: argparse.Namespace) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The CLI; Ctrl-C or SIGTERM is one line and exit 130 / 143, the report folder left as it was
+    (``make_report`` builds beside it and swaps it in only once whole)."""
     args = parse_args(argv)
+    try:
+        with raise_on_signals():
+            return _main(args)
+    except Interrupted as exc:
+        where = args.out or args.redraw
+        print(f"error: {exc}" + (f"; {where} left as it was" if where and not args.redraw else ""), file=sys.stderr)
+        return exc.exit_code
+
+
+def _main(args: argparse.Namespace) -> int:
     try:
         formats = tuple(f.strip().lower().lstrip(".") for f in args.format.split(",") if f.strip())
         check_figure_options(formats, args.dpi)  # before any table is written

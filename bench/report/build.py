@@ -24,6 +24,7 @@ from bench.report.render import tables_markdown, to_latex
 from bench.report.route_scale import MILESTONES_FILE, read_milestones, scale_markdown
 from bench.report.settings import mixed_settings, settings_markdown
 from bench.report.stats import confidence_interval
+from bench.report.swap import built_beside
 from bench.report.tables import SELECTABLE_METRICS, Table, build_tables
 
 
@@ -53,7 +54,7 @@ def load_labels(path: Path | None) -> Labels:
         return Labels()
     try:
         raw = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:  # missing, binary, not YAML
         raise ReportError(f"cannot read labels file '{path}': {str(exc).splitlines()[0]}") from None
     raw = {} if raw is None else raw
     if not isinstance(raw, dict) or set(raw) - {"methods", "metrics"}:
@@ -87,10 +88,13 @@ def make_report(
     ``runs.csv``, ``accuracy_<dataset>.tex``, ``performance_<dataset>.tex``, ``tables.md``,
     ``stats.csv`` (seed statistics of every table cell) and the figures (each in ``formats``, at
     ``dpi``) into ``out``. Raises ``ReportError`` when no
-    usable run is found."""
+    usable run is found. ``out`` is replaced as a unit (``bench.report.swap``): a report stopped part-way
+    leaves it as it was."""
     labels = labels or Labels()
-    with use_method_names(labels.methods):
-        return _make_report(run_dirs, out, paper, baseline, formats, dpi, labels.metrics)
+    with use_method_names(labels.methods), built_beside(Path(out), run_dirs) as work:
+        result = _make_report(run_dirs, work, paper, baseline, formats, dpi, labels.metrics)
+    result.out, result.files = Path(out), [Path(out) / f.relative_to(work) for f in result.files]
+    return result
 
 
 def _make_report(

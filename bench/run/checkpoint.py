@@ -33,6 +33,7 @@ import torch
 
 from bench.config.settings import check_rules, setting
 from bench.errors import BenchError
+from bench.fileio import open_nofollow
 from bench.run.resume import redo_reason
 
 log = logging.getLogger(__name__)
@@ -83,7 +84,8 @@ def save(out: Path, payload: dict[str, Any], keep: int = 2) -> Written:
     newest, previous = (out / f for f in FILES)
     tmp = out / (FILES[0] + ".tmp")
     try:
-        with open(tmp, "wb") as fh:
+        tmp.unlink(missing_ok=True)  # a leftover (or a link planted there): the temporary file is made new
+        with open_nofollow(tmp, "xb") as fh:
             torch.save({"format": FORMAT, **payload}, fh)
             fh.flush()
             os.fsync(fh.fileno())

@@ -110,13 +110,15 @@ def snapshot_keyframes(run_dir: Path) -> list[int]:
 
 def read_snapshot(path: Path) -> dict[str, np.ndarray]:
     """A ``maps/kf_NNN.npz`` snapshot's ``PARAMS`` arrays (float32); a ``ConfigError`` line for a truncated or
-    corrupt file."""
+    corrupt file, or for arrays that do not describe one set of Gaussians."""
     try:
         with np.load(path) as data:
-            return {k: np.asarray(data[k], dtype=np.float32) for k in PARAMS}
+            arrays = {k: np.asarray(data[k], dtype=np.float32) for k in PARAMS}
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as exc:  # truncated, corrupt
         found = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise ConfigError(f"expected '{path}' to hold the arrays {', '.join(PARAMS)}, found: {found}") from None
+    check_shapes(arrays, path)
+    return arrays
 
 
 def export_keyframe(run_dir: Path, keyframe: int, out: Path | None = None) -> Path:
@@ -140,6 +142,20 @@ def export_keyframe(run_dir: Path, keyframe: int, out: Path | None = None) -> Pa
         return write_ply(target, arrays)
     except OSError as exc:
         raise ConfigError(f"--out: expected a writable file path, found '{target}': {exc.strerror or exc}") from None
+
+
+WIDTHS = {"means": 3, "log_scales": 3, "quats": 4, "opacity_logits": None, "colors": 3}  # per Gaussian; None: [N]
+
+
+def check_shapes(arrays: dict[str, np.ndarray], path: Path) -> None:
+    """One ``ConfigError`` line unless ``arrays`` (``PARAMS``) describe one set of N Gaussians: ``means`` [N, 3],
+    ``log_scales`` [N, 3], ``quats`` [N, 4], ``opacity_logits`` [N], ``colors`` [N, 3]."""
+    n = len(arrays["means"]) if arrays["means"].ndim else -1
+    bad = [name for name, width in WIDTHS.items() if arrays[name].shape != ((n,) if width is None else (n, width))]
+    if bad:
+        expected = ", ".join(f"{k} [N{'' if w is None else f', {w}'}]" for k, w in WIDTHS.items())
+        found = ", ".join(f"{k} {list(arrays[k].shape)}" for k in WIDTHS)
+        raise ConfigError(f"expected '{path}' to hold one map ({expected}), found {found}")
 
 
 def read_ply(path: Path) -> dict[str, np.ndarray]:

@@ -17,6 +17,7 @@ on the frames tracked.
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import time
 from dataclasses import dataclass, field
@@ -34,10 +35,13 @@ from bench.config.identity import run_keys
 from bench.config.settings import plain
 from bench.datasets import FrameSequence
 from bench.errors import BenchError, ConfigError
+from bench.fileio import link_message, planted_links
 from bench.report.figures.pruned_run import PruneViz
 from bench.run import checkpoint as ckpt
 from bench.run import evaluation, job_outputs, loop, provenance
 from bench.run.determinism import repeatable
+from bench.run.export import MAP_FILE
+from bench.run.lock import run_dir_lock
 from bench.run.loop import TRAJ_EST, flushed_rows
 from bench.run.record import RunRecord, is_leftover, owner, promote, read_record, record_refusal, write_text
 from bench.run.resume import redo_reason
@@ -106,9 +110,34 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
             built = validate(cfg)
     except ConfigError as exc:  # in a sweep the job is recorded; a single run was refused by the CLI already
         make_out_dir(out)
-        return _refused(out, str(exc), run_keys(cfg), task_cfg=cfg)
-    conf = built.config  # below here only dataclasses travel
+        with run_dir_lock(out):
+            _refuse_links(out)
+            return _refused(out, str(exc), run_keys(cfg), task_cfg=cfg)
     make_out_dir(out)
+    with run_dir_lock(out):  # one writer per run dir, for the run's whole life: a live one refuses this one
+        _refuse_links(out)
+        return _run_locked(cfg, out, built)
+
+
+# files a run writes at the top of its dir: a directory in one's place is refused before any work
+RUN_FILES = (schema.METRICS_FILE, "config.yaml", TRAJ_EST, schema.KEYFRAMES_FILE, MAP_FILE)
+
+
+def _refuse_links(out: Path) -> None:
+    """A symlink in the run dir (``keyframes.csv`` -> a file elsewhere) is refused before anything is written:
+    the run would write through it (``bench.fileio``); so is a directory where a run file goes."""
+    links = planted_links(out)
+    if links:
+        more = f" (and {len(links) - 1} more)" if len(links) > 1 else ""
+        raise ConfigError(link_message(links[0]) + more)
+    in_the_way = [name for name in RUN_FILES if (out / name).is_dir()]
+    if in_the_way:
+        raise ConfigError(f"run dir {out}: expected {in_the_way[0]} to be a file or nothing, found a directory")
+
+
+def _run_locked(cfg: DictConfig, out: Path, built: ValidatedRun) -> RunResult:
+    """``run`` past validation, with ``out`` made and its lock held."""
+    conf = built.config  # below here only dataclasses travel
     stored = _previous(out)
     keys = run_keys(conf, built.tree)
     try:
@@ -207,18 +236,27 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
         status, error, metrics = "failed", str(exc), record["metrics"]
     except Exception as exc:  # unexpected: record it so the sweep goes on, then re-raise for the traceback
         behind = signal_behind(exc)  # a stop that a C extension reported as its own error
-        if behind is None:
+        failed_write = write_failure(exc, out)
+        if behind is None and failed_write is None:
             record.close(status="failed", error=f"{type(exc).__name__}: {exc}".splitlines()[0])
             raise
-        n_done = record["metrics"].get("num_frames", 0)
-        status, error, metrics, stop = "interrupted", f"{behind} after {n_done} frames", record["metrics"], behind
+        if behind is None:  # a full disk, a dir made read-only: the run's own files cannot be written
+            status, error, metrics = "failed", str(failed_write), record["metrics"]
+        else:
+            n_done = record["metrics"].get("num_frames", 0)
+            status, error, metrics, stop = "interrupted", f"{behind} after {n_done} frames", record["metrics"], behind
     with deferred_signals():  # a second Ctrl-C must not cut the record in half
-        record.close(status=status, error=error, metrics=metrics)
-        if status != "interrupted":
-            ckpt.remove(out)  # finished (or failed on its data): a rerun never resumes it
-            if out != final and status in schema.FINISHED:
-                promote(out, final)  # only a redo that finishes replaces the finished record
-                out = final
+        try:
+            record.close(status=status, error=error, metrics=metrics)
+            if status != "interrupted":
+                ckpt.remove(out)  # finished (or failed on its data): a rerun never resumes it
+                if out != final and status in schema.FINISHED:
+                    promote(out, final)  # only a redo that finishes replaces the finished record
+                    out = final
+        except OSError as exc:  # the record itself cannot be written (the same full disk or read-only dir)
+            if write_failure(exc, out) is None:
+                raise
+            status, error = "failed", f"{error or status}; {write_failure(exc, out)} (metrics.json not updated)"
     if stop is not None:
         if preempt.signum is not None and preempt.signum == stop.signum:
             log.warning(
@@ -229,6 +267,19 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
             preempt.hand_over()  # the launcher's own handler (submitit: requeue, then exit)
         raise Interrupted(stop.signum, f"{error}; partial results in {out}")
     return RunResult(status, out, metrics, error)
+
+
+# the file system refusing a run's writes: full, read-only, no permission, too big, a directory in a file's place
+WRITE_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG, errno.EISDIR)
+
+
+def write_failure(exc: BaseException, out: Path) -> BenchError | None:
+    """A file system refusing the run's writes (``WRITE_ERRNOS``: full, read-only, no permission) as one line;
+    None for any other error (a bug, which keeps its traceback)."""
+    if not isinstance(exc, OSError) or exc.errno not in WRITE_ERRNOS:
+        return None
+    where = exc.filename if exc.filename else "its files"
+    return BenchError(f"run dir {out}: expected to write {where}, found: {exc.strerror or exc}")
 
 
 def _refused(

@@ -18,7 +18,9 @@ from typing import Any
 
 import numpy as np
 
+from bench.fileio import open_nofollow
 from bench.run import job_outputs
+from bench.run.lock import LOCK_FILE
 from bench.schema import METRICS_FILE, REDO_DIR
 
 # statuses a refusal must not replace: finished results, a resumable run, a run that may still be going
@@ -33,8 +35,9 @@ def write_json(path: Path, obj: dict[str, Any]) -> None:
 def write_text(path: Path, text: str) -> None:
     """Replace ``path`` by ``text`` atomically; a failed write leaves the old file and no temporary one."""
     tmp = path.with_name(path.name + ".tmp")
+    tmp.unlink(missing_ok=True)  # a leftover (or a link planted there): the temporary file is made new
     try:
-        with open(tmp, "w") as fh:
+        with open_nofollow(tmp, "x") as fh:
             fh.write(text)
             fh.flush()
             os.fsync(fh.fileno())
@@ -158,6 +161,6 @@ def promote(staged: Path, final: Path) -> None:
             shutil.rmtree(target)
         os.replace(path, target)
     for old in final.iterdir():
-        if old.name not in names and old.name != REDO_DIR:
+        if old.name not in names and old.name not in (REDO_DIR, LOCK_FILE):
             shutil.rmtree(old) if old.is_dir() and not old.is_symlink() else old.unlink()
     staged.rmdir()

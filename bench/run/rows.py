@@ -7,6 +7,8 @@ import csv
 from pathlib import Path
 from typing import Any
 
+from bench.fileio import open_nofollow
+
 
 class FlushedRows:
     """A csv file written a row at a time and flushed after each (appended to on resume); no file when off."""
@@ -17,7 +19,7 @@ class FlushedRows:
 
     def __enter__(self) -> FlushedRows:
         if self.on:
-            self._fh = open(self.path, "a" if self.append else "w", newline="")
+            self._fh = open_nofollow(self.path, "a" if self.append else "w", newline="")
             self._writer = csv.DictWriter(self._fh, fieldnames=self.columns)
             if not self.append:
                 self._writer.writeheader()

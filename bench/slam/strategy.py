@@ -18,7 +18,7 @@ from typing import Any, ClassVar
 import torch
 
 from bench.config import plugins as registry
-from bench.config.settings import check_rules, check_types, setting
+from bench.config.settings import check_rules, check_types, did_you_mean, setting
 from bench.errors import ConfigError, StrategyError
 from bench.slam.gaussians import GaussianMap, ParamSpec
 from bench.slam.raster import EXTRA_STATS, RasterOutput
@@ -201,9 +201,15 @@ class Strategy:
 
 
 def top_k_keep(score: torch.Tensor, candidates: torch.Tensor, k: int) -> torch.Tensor:
-    """Keep all non-candidates plus the ``k`` best-scoring candidates (the shared global rule)."""
+    """Keep all non-candidates plus the ``k`` best-scoring candidates (the shared global rule).
+
+    A NaN among the candidates' scores has no rank (``topk`` would keep an arbitrary set): a ``StrategyError``.
+    """
     keep = ~candidates
     idx = candidates.nonzero().flatten()
+    n_nan = int(torch.isnan(score[idx]).sum()) if idx.numel() and score.is_floating_point() else 0
+    if n_nan:
+        raise StrategyError(f"top_k_keep: expected scores to rank, found {n_nan} NaN of {idx.numel()} candidates")
     if idx.numel() and k > 0:
         best = idx[torch.topk(score[idx], min(k, idx.numel())).indices]
         keep = keep.clone()
@@ -230,9 +236,10 @@ def check_choice(strategy: str, field: str, value: object, allowed: tuple[str, .
 class CheckedStrategy(Strategy):
     """The core's side of the contract: forwards every hook and checks what comes back.
 
-    A keep mask must be a bool tensor [N] on the map's device, a render mask a floating [N], a loss
-    a scalar; anything else is a ``StrategyError`` naming the strategy, raised here rather than as
-    a shape error deep in the removal path. ``StrategyError``s raised inside a hook get the name too.
+    A keep mask must be a bool tensor [N] on the map's device, a render mask or a score a finite floating
+    [N], a loss a finite scalar; anything else is a ``StrategyError`` naming the strategy, raised here rather
+    than as a shape error (or an arbitrary ranking of NaN) deep in the removal path. ``StrategyError``s
+    raised inside a hook get the name too.
     The hooks are forwarded from one table (``_RESULT_CHECKS``, below): a hook added to ``Strategy``
     without a check there stops this module from importing.
     """
@@ -268,7 +275,17 @@ class CheckedStrategy(Strategy):
         ok_dtype = out.dtype == torch.bool if kind == "bool" else out.is_floating_point()
         if not ok_dtype or tuple(out.shape) != (n,):
             raise self._fail(hook, f"a {kind} tensor [{n}]", f"{out.dtype} {list(out.shape)}")
+        if kind != "bool":
+            self._finite(hook, out)
         return out
+
+    def _finite(self, hook: str, out: torch.Tensor) -> None:
+        """NaN or inf in a score or mask would rank or weigh Gaussians arbitrarily: refused here."""
+        bad = ~torch.isfinite(out.detach())
+        if bool(bad.any()):
+            n_nan = int(torch.isnan(out.detach()).sum())
+            found = f"{n_nan} NaN and {int(bad.sum()) - n_nan} infinite of {out.numel()}"
+            raise self._fail(hook, "finite values", found)
 
 
 def _state_spec(s: CheckedStrategy, spec: Any) -> dict[str, torch.dtype]:
@@ -293,6 +310,8 @@ def _mapping_loss(s: CheckedStrategy, loss: Any, ctx: MappingContext) -> torch.T
     if loss is not None and (not isinstance(loss, torch.Tensor) or loss.numel() != 1):
         found = f"{loss.dtype} {list(loss.shape)}" if isinstance(loss, torch.Tensor) else type(loss).__name__
         raise s._fail("mapping_loss", "a scalar tensor or None", found)
+    if loss is not None:
+        s._finite("mapping_loss", loss)
     return loss
 
 
@@ -357,7 +376,7 @@ def unknown_params(name: str, cls: type[Strategy], params: Mapping[str, Any]) ->
     if unknown:
         raise ConfigError(
             f"strategy '{name}': expected parameters among {', '.join(sorted(fields)) or '(none)'}, "
-            f"found {', '.join(repr(u) for u in unknown)}"
+            f"found {', '.join(repr(u) for u in unknown)}{did_you_mean(unknown[0], fields)}"
         )
 
 

@@ -166,8 +166,12 @@ def _unquoted(value: str) -> str:
 
 
 def header(config: DictConfig, jobs: list[list[str]]) -> dict[str, Any]:
-    """What the summary needs of the plan: each job's number, name and dir."""
+    """What the summary needs of the plan: each job's number, name, dir and sweep dir (the summary's folder: a
+    value with ``/`` nests a job's dir deeper than one level below it)."""
     return {
         "total": len(jobs),
-        "planned": [{"num": i, "name": job_name(j), "dir": str(job_dir(config, j, i))} for i, j in enumerate(jobs)],
+        "planned": [
+            {"num": i, "name": job_name(j), "dir": str(job_dir(config, j, i)), "sweep": str(sweep_dir(config, j))}
+            for i, j in enumerate(jobs)
+        ],
     }

@@ -16,8 +16,9 @@ from collections.abc import Sequence
 
 from omegaconf import OmegaConf
 
+from bench.conf import group_files
 from bench.errors import ConfigError
-from bench.sweep.studyfile import GROUP, Job, Study, check_name, expand, parse
+from bench.sweep.studyfile import GROUP, Job, Study, check_file, check_name, expand, parse
 
 __all__ = ["GROUP", "Job", "Study", "check_name", "expand", "load", "main", "parse"]
 
@@ -29,6 +30,7 @@ def load(name: str, extra: Sequence[str] = ()) -> tuple[Study, list[Job]]:
     from bench.sweep.plan import job_dir, own_dirs
 
     check_name(name)
+    check_file(name, group_files(GROUP)[name])  # only what a study needs, before Hydra composes it
     try:
         cfg = compose([f"+{GROUP}={name}"], hydra=True)
     except Exception as exc:  # YAML syntax (yaml's own errors), composition (Hydra's, OmegaConf's)

@@ -212,7 +212,7 @@ class SweepSummary(Callback):
         elapsed = time.time() - float(header.get("start", time.time()))
         by_dir: dict[Path, list[dict[str, Any]]] = {}
         for row in rows:
-            by_dir.setdefault(Path(row["dir"]).resolve().parent if row.get("dir") else path.parent, []).append(row)
+            by_dir.setdefault(_sweep_of(row, path.parent), []).append(row)
         for sweep_dir, own in by_dir.items():
             _, shared = varying_overrides([j.get("name") or "" for j in own])
             common = f"Shared overrides: `{' '.join(shared)}`.\n" if shared else ""
@@ -223,6 +223,14 @@ class SweepSummary(Callback):
         written = ", ".join(str(d / SUMMARY_FILE) for d in by_dir)
         print(f"\n{sweep_table(rows)}\n{_counts(rows)}; summary written to {written}", file=sys.stdout, flush=True)
         path.unlink(missing_ok=True)
+
+
+def _sweep_of(row: dict[str, Any], default: Path) -> Path:
+    """The sweep dir a job belongs to: as planned, else its run dir's parent (a record from before plans named
+    it), else ``default``."""
+    if row.get("sweep"):
+        return Path(row["sweep"]).resolve()
+    return Path(row["dir"]).resolve().parent if row.get("dir") else default
 
 
 def _counts(rows: list[dict[str, Any]]) -> str:

@@ -21,6 +21,8 @@ from hydra.errors import HydraException
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
+from bench.errors import BenchError
+from bench.run.lock import run_dir_lock
 from bench.run.record import record_refusal
 
 log = logging.getLogger(__name__)
@@ -87,11 +89,16 @@ class BenchSweeper(BasicSweeper):
         try:
             self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
             return True
-        except (HydraException, OmegaConfBaseException) as exc:
+        except (HydraException, OmegaConfBaseException, AssertionError) as exc:  # AssertionError: OmegaConf's
             message = composition_error(exc, list(overrides))
         log.info("\t#%d : %s", job_idx, " ".join(overrides))
         out = job_dir(self.config, overrides, job_idx)
-        record_refusal(out, message, _run_keys(self.config, overrides))
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+            with run_dir_lock(out):  # a live run in this dir keeps it: the refusal is only printed
+                record_refusal(out, message, _run_keys(self.config, overrides))
+        except (BenchError, OSError) as exc:
+            message += f" (nothing written: {exc})"
         print(f"error: {message}", file=sys.stderr)
         job = {
             "num": job_idx,

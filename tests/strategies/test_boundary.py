@@ -84,6 +84,35 @@ def test_render_mask_and_loss_shapes_are_checked():
         CheckedStrategy(Returns(torch.ones(3)), "mine").mapping_loss(ctx)
 
 
+@pytest.mark.parametrize("hook", ["cap_score", "render_mask", "mapping_loss"])
+def test_a_score_mask_or_loss_that_is_not_finite_is_a_strategy_error(hook: str) -> None:
+    g = _map(3)
+    ctx = _prune_ctx(g) if hook == "cap_score" else MappingContext(0, 0, g, g.state, True)
+    out = torch.tensor(float("nan")) if hook == "mapping_loss" else torch.tensor([0.5, float("nan"), float("inf")])
+    with pytest.raises(StrategyError) as err:
+        getattr(CheckedStrategy(Returns(out), "mine"), hook)(ctx)
+    found = "1 NaN and 0 infinite of 1" if hook == "mapping_loss" else "1 NaN and 1 infinite of 3"
+    assert str(err.value) == f"strategy 'mine' {hook}: expected finite values, found {found}"
+    finite = torch.tensor(0.5) if hook == "mapping_loss" else torch.tensor([0.5, 0.0, 1.0])
+    assert getattr(CheckedStrategy(Returns(finite), "mine"), hook)(ctx) is finite
+
+
+def test_nan_scores_ranked_by_top_k_keep_are_a_strategy_error_naming_the_strategy() -> None:
+    from bench.slam.strategy import top_k_keep
+
+    class NanScores(Strategy):
+        def after_mapping(self, ctx):
+            score = torch.tensor([0.3, float("nan"), 0.1, 0.2, float("nan")])  # [N]
+            return top_k_keep(score, ctx.candidates, 2)
+
+    with pytest.raises(StrategyError) as err:
+        CheckedStrategy(NanScores(), "nans").after_mapping(_prune_ctx(_map(5)))
+    assert (
+        str(err.value)
+        == "strategy 'nans' after_mapping: top_k_keep: expected scores to rank, found 2 NaN of 5 candidates"
+    )
+
+
 def test_a_strategy_error_raised_inside_a_hook_gets_the_name():
     class Broken(Strategy):
         def after_mapping(self, ctx):
