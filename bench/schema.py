@@ -299,7 +299,7 @@ METRIC_FIELDS: tuple[Field, ...] = (
     Field(
         "store_per_keyframe_bytes",
         "B",
-        "keyframe store bytes in memory per keyframe held, at the keyframe window of largest peak",
+        "keyframe store bytes in memory per keyframe held, at the last keyframe window",
     ),
     Field(
         "gaussian_share_of_peak",
@@ -364,13 +364,15 @@ def regime_summary(windows: Sequence[dict[str, Any]], image_hw: tuple[int, int],
     largest = max(windows, key=lambda w: w["n_gaussians"])
     if largest["n_gaussians"]:
         out["state_per_gaussian_bytes"] = round(largest["state_bytes"] / largest["n_gaussians"], 1)
+    # the store per keyframe at the last window that measured it: exact bytes, the same in a resumed run
+    held = [w for w in windows if w.get("mem_keyframes_mib") is not None and w.get("n_kf_held")]
+    if held:
+        out["store_per_keyframe_bytes"] = round(held[-1]["mem_keyframes_mib"] * MIB / held[-1]["n_kf_held"], 1)
     col = peak_column(peak_source)
     at_peak = [w for w in windows if w.get(col or "") is not None]
     if col is None or not at_peak:
         return out
     w = max(at_peak, key=lambda r: r[col])
-    if w.get("mem_keyframes_mib") is not None and w.get("n_kf_held"):
-        out["store_per_keyframe_bytes"] = round(w["mem_keyframes_mib"] * MIB / w["n_kf_held"], 1)
     if w.get("mem_state_mib") is not None and w.get("mem_work_mib") is not None and w[col] > 0:
         out["gaussian_share_of_peak"] = round((w["mem_state_mib"] + w["mem_work_mib"]) / w[col], 4)
     return out

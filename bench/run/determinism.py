@@ -39,6 +39,7 @@ MODES: tuple[str, ...] = ("strict", "fast")
 VOLATILE_METRICS: frozenset[str] = frozenset({
     "slam_wall_s", "warmup_s", "refine_s", "eval_s", "wall_s", "fps", "phase_s", "cpu_rss_peak_mib",
     "torch_live_peak_mib", "cuda_alloc_peak_mib", "cuda_reserved_peak_mib", "peak_mem_mib",
+    "gaussian_share_of_peak",  # from the peak and its work buffers
 })  # fmt: skip
 VOLATILE_KEYFRAME_COLUMNS: frozenset[str] = frozenset({
     "track_s", "map_s", "prune_s", "diag_s", "cpu_rss_peak_mib", "torch_live_peak_mib", "cuda_alloc_peak_mib",
