@@ -186,8 +186,13 @@ class Timers:
                 setattr(owner, name, orig)
 
 
-def profile(call: tuple, iters: int, blocks: int) -> str:
+def profile(call: tuple, iters: int, blocks: int, threads: int) -> str:
+    """The iterations timed as the run ran them: on its thread count, with denormals flushed as the
+    SLAM system sets them (the run's end restores both, and Adam's moments and small gradients are
+    slow as denormals)."""
     sys_, kf_idx, pick = call
+    torch.set_num_threads(threads)
+    torch.set_flush_denormal(True)
     clock = Clock()
     timers = Timers(clock)
     shares: dict[str, list[float]] = {p: [] for p in PARTS}
@@ -206,6 +211,7 @@ def profile(call: tuple, iters: int, blocks: int) -> str:
                 per_iter_ms[p].append(clock.ms.get(p, 0.0) / iters)
     finally:
         timers.restore()
+        torch.set_flush_denormal(False)
     lines = [f"one mapping iteration ({blocks} blocks of {iters}; medians over the blocks)"]
     lines.append(f"  {'part':<14} {'ms/iter':>8} {'share':>6}")
     for p in PARTS:
@@ -245,6 +251,7 @@ def main() -> None:
     call, head = build_map(args.frames, args.threads, shlex.split(args.overrides))
     print(head, flush=True)
     sys_, _, pick = call
+    torch.set_num_threads(args.threads)  # the run's end restored the count it found
     per_tile, per_px, n_view, n = pair_counts(sys_, pick, 4)
     print(
         f"  {n} Gaussians, {n_view} in view on average; {per_px:.1f} contributing (pixel, Gaussian) pairs per "
@@ -252,7 +259,7 @@ def main() -> None:
         f"threads={torch.get_num_threads()}",
         flush=True,
     )
-    print(profile(call, args.iters, args.blocks), flush=True)
+    print(profile(call, args.iters, args.blocks, args.threads), flush=True)
 
 
 if __name__ == "__main__":
