@@ -70,7 +70,8 @@ class Clock:
                 self.stack[-1][1] = now
 
 
-def _wrap(owner, name: str, clock: Clock, label: Callable[[], str] | str, static: bool = False):
+def wrap_timed(owner, name: str, clock: Clock, label: Callable[[], str] | str, static: bool = False):
+    """Replace ``owner.name`` by itself timed under ``label`` on ``clock``; returns the original."""
     orig = getattr(owner, name)
 
     def wrapped(*a, **k):
@@ -140,18 +141,18 @@ class Profile:
             return orig_render(self_, *a, **k)
 
         sysc.render = render
-        _wrap(raster, "_front", self.clock, lab("projection"))
-        _wrap(raster, "_front_fused", self.clock, lab("projection"))
-        _wrap(raster_fused, "bin_pairs", self.clock, lab("binning"))
-        _wrap(fused_autograd._Composite, "forward", self.clock, lab("raster_fwd"), static=True)
-        _wrap(fused_autograd._Composite, "backward", self.clock, lab("raster_bwd"), static=True)
-        _wrap(fused_autograd._Project, "backward", self.clock, lab("proj_bwd"), static=True)
-        _wrap(raster, "_render_torch", self.clock, lab("raster_fwd"))
+        wrap_timed(raster, "_front", self.clock, lab("projection"))
+        wrap_timed(raster, "_front_fused", self.clock, lab("projection"))
+        wrap_timed(raster_fused, "bin_pairs", self.clock, lab("binning"))
+        wrap_timed(fused_autograd._Composite, "forward", self.clock, lab("raster_fwd"), static=True)
+        wrap_timed(fused_autograd._Composite, "backward", self.clock, lab("raster_bwd"), static=True)
+        wrap_timed(fused_autograd._Project, "backward", self.clock, lab("proj_bwd"), static=True)
+        wrap_timed(raster, "_render_torch", self.clock, lab("raster_fwd"))
         for name in ("_tracking_loss", "_depth_l1", "_mapping_loss"):
             if hasattr(sysc, name):
-                _wrap(sysc, name, self.clock, lab("loss"))
-        _wrap(torch.Tensor, "backward", self.clock, lab("autograd_glue"))
-        _wrap(torch.optim.Adam, "step", self.clock, lab("adam"))
+                wrap_timed(sysc, name, self.clock, lab("loss"))
+        wrap_timed(torch.Tensor, "backward", self.clock, lab("autograd_glue"))
+        wrap_timed(torch.optim.Adam, "step", self.clock, lab("adam"))
 
     def reset(self) -> None:
         self.clock.ms.clear()

@@ -170,6 +170,34 @@ def test_gradients_are_bit_identical_run_to_run():
         torch.set_num_threads(threads)
 
 
+_THREADS_AFTER_RENDER = """
+import torch
+torch.set_num_threads(1)
+from bench.slam.raster import rasterize
+g = torch.Generator().manual_seed(0)
+n = 64
+means = torch.cat([torch.rand(n, 2, generator=g) - 0.5, torch.full((n, 1), 3.0)], 1)
+K = torch.tensor([[40.0, 0, 32], [0, 40.0, 32], [0, 0, 1]])
+rasterize(means, torch.full((n, 3), -3.0), torch.randn(n, 4, generator=g), torch.full((n,), 0.8),
+          torch.rand(n, 3, generator=g), torch.eye(4), K, 64, 64, backend="fused")
+print(torch.get_num_threads())
+"""
+
+
+def test_a_fused_render_leaves_torchs_thread_count_alone():
+    """numba's OpenMP pool, started by the first fused render of a process, set the OpenMP thread count
+    torch shares to every core: a run at threads=1 then ran its torch operations on all of them."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    proc = subprocess.run(
+        [sys.executable, "-c", _THREADS_AFTER_RENDER], cwd=root, capture_output=True, text=True, check=True
+    )
+    assert proc.stdout.split()[-1] == "1", proc.stdout
+
+
 def test_gaussians_out_of_view_change_nothing_bit_for_bit():
     """The fused path runs on the Gaussians in view only: a map with as many again behind the camera
     and beside the frustum, interleaved, renders and differentiates exactly as the visible ones alone."""

@@ -24,6 +24,13 @@ PARALLEL_MIN_ITEMS = 32_768
 
 
 def set_threads(n_items: int) -> None:
-    """Run the next kernel on as many threads as torch uses (``threads=``), or one for small work."""
-    n = torch.get_num_threads() if n_items >= PARALLEL_MIN_ITEMS else 1
+    """Run the next kernel on as many threads as torch uses (``threads=``), or one for small work.
+
+    numba's OpenMP pool starts on numba's first call and then sets the OpenMP runtime's thread count,
+    which torch shares, to all the cores (``NUMBA_NUM_THREADS``): a run at ``threads=1`` ran every
+    torch operation after its first render on every core. Torch's count is put back."""
+    n_torch = torch.get_num_threads()
+    n = n_torch if n_items >= PARALLEL_MIN_ITEMS else 1
     numba.set_num_threads(max(1, min(n, numba.config.NUMBA_NUM_THREADS)))  # type: ignore[attr-defined]  # set at run time
+    if torch.get_num_threads() != n_torch:
+        torch.set_num_threads(n_torch)
