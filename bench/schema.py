@@ -369,8 +369,10 @@ def regime_summary(windows: Sequence[dict[str, Any]], image_hw: tuple[int, int],
     if held:
         out["store_per_keyframe_bytes"] = round(held[-1]["mem_keyframes_mib"] * MIB / held[-1]["n_kf_held"], 1)
     col = peak_column(peak_source)
-    at_peak = [w for w in windows if w.get(col or "") is not None]
-    if col is None or not at_peak:
+    if col is None:
+        return out
+    at_peak = [w for w in windows if w.get(col) is not None]
+    if not at_peak:
         return out
     w = max(at_peak, key=lambda r: r[col])
     if w.get("mem_state_mib") is not None and w.get("mem_work_mib") is not None and w[col] > 0:

@@ -117,7 +117,7 @@ class PruneConfig:
     # the absolute N_tar (released code: 80,000 on KITTI, 60,000 on EuRoC)
     n_target: int | None = setting(None, "int", lo=0, nullable=True)
     # or the absolute N_tar per megapixel of the run's images, so that the budget scales with the resolution:
-    # N_tar = round(n_target_per_mpx x H x W / 1e6) (the released 60,000 at EuRoC's 752x480 is 166,229 per Mpx)
+    # N_tar = round(n_target_per_mpx x H x W / 1e6) (docs/presets.md gives the released budgets per megapixel)
     n_target_per_mpx: float | None = setting(None, "float", lo=0.0, nullable=True)
     # keyframe: after each keyframe's mapping; frame: also after each tracked frame
     every: str = setting("keyframe", "str", choices=PRUNE_EVERY)
