@@ -59,7 +59,7 @@ stamp "compile step rc=$?"
 
 stamp "agreement tests"
 timeout "$(limit "$T_TESTS" 280)" python3 -m pytest -q -p no:cacheprovider -rs tests/slam/test_raster_gsplat.py \
-  tests/slam/test_raster_fused.py::test_backend_choice 2>&1 | tee "$OUT/tests.log" | tail -5
+   tests/slam/test_raster_fused.py::test_backend_choice 2>&1 | tail -5
 stamp "tests rc=$?"
 
 BASE=(dataset=kitti "dataset.root=$PWD/$KITTI" seq=06 threads=8 slam.raster_backend=gsplat progress=false)
