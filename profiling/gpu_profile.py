@@ -172,6 +172,8 @@ def phase_table(prof: Any, wall_s: float) -> tuple[list[dict[str, Any]], str]:
     totals: dict[tuple[str, str], list[float]] = defaultdict(lambda: [0, 0.0])  # (device, name) -> [count, s]
     for e in events:
         name, dev = e.name(), e.device_type()
+        if dev == cuda and e.is_user_annotation():  # the device-side mirror of a record_function range, not work
+            continue
         dur_s = e.duration_ns() / 1e9
         tot = totals[("cuda" if dev == cuda else "cpu", name)]
         tot[0] += 1

@@ -113,6 +113,11 @@ class SlamConfig:
     # blob at full opacity, in farther views (bench/slam/raster.py:antialias_compensation). Off = the
     # paper's base system (SplaTAM's rasterizer has only the low-pass).
     raster_antialias: bool = False
+    # how the gsplat backend computes the per-Gaussian statistics (coverage, hit count, max weight) the pruning
+    # criteria read: torch = bench/slam/raster_gsplat.py:pair_stats, chunks of whole tiles (tens of thousands of
+    # small kernels a full-resolution frame); triton = bench/slam/gsplat_stats.py, one kernel; auto = triton where
+    # it is importable. The same figures to float rounding (tests/slam/test_raster_gsplat.py); CPU backends ignore it
+    gsplat_stats: str = setting("auto", "str", choices=("auto", "torch", "triton"))
     # one scale per Gaussian, as SplaTAM's (gaussian_distribution="isotropic"), the paper's base system;
     # False = 3DGS's anisotropic ellipsoids. Rendered with the mean of the three log-scales, which get
     # equal gradients and so stay equal (the map file keeps three columns either way). Why: a needle
