@@ -75,11 +75,12 @@ def _half_pixel(device: torch.device, dtype: torch.dtype) -> torch.Tensor:
     return half.to(device)
 
 
-def stats_impl(choice: str) -> str:
-    """``slam.gsplat_stats`` resolved: ``torch`` or ``triton`` (``auto``: triton where it can run)."""
+def stats_impl(choice: str, device: torch.device | None = None) -> str:
+    """``slam.gsplat_stats`` resolved for tensors on ``device``: ``torch`` or ``triton`` (``auto``: triton where it
+    can run; tensors on the CPU, as the tests' stand-in for gsplat passes them, always take the torch chunks)."""
     from bench.slam.gsplat_stats import unavailable_reason
 
-    if choice == "torch":
+    if choice == "torch" or (device is not None and device.type != "cuda"):
         return "torch"
     reason = unavailable_reason()
     if choice == "triton" and reason is not None:
@@ -206,7 +207,7 @@ def rasterize_gsplat(
             per_tile = torch.diff(offsets.reshape(-1).long(), append=offsets.new_full((1,), flatten_ids.numel()).long())
             from bench.slam.gsplat_stats import pair_stats_triton
 
-            impl = pair_stats_triton if stats_impl(gsplat_stats) == "triton" else pair_stats
+            impl = pair_stats_triton if stats_impl(gsplat_stats, device) == "triton" else pair_stats
             cov_v, hits_v, maxw_v = impl(
                 means2d[gid].detach(),
                 conics.detach(),

@@ -28,6 +28,7 @@ ROOT = Path(__file__).resolve().parents[2]
 POSE = torch.tensor([0.01, -0.02, 0.03, 0.01, -0.01, 0.02])
 CUDA_POINTS = [(2000, 96, 64), (20000, 320, 192), (50000, 640, 384)]  # raster_bench's range, small to large
 CPU_POINTS = [(2000, 96, 64), (5000, 160, 96)]
+STANDIN_CASE = ("aniso", 2000, 96, 64, False)  # kind, n, W, H, antialiased: one stand-in case
 
 # image: max |diff| and mean |diff|; depth in m
 IMAGE_TOL = {"color": (1e-2, 1e-4), "alpha": (1e-2, 1e-4), "depth": (0.1, 1e-3)}
@@ -230,3 +231,21 @@ def test_triton_statistics_unavailable_is_one_config_error(monkeypatch):
     with pytest.raises(ConfigError, match="slam.gsplat_stats=triton: no CUDA device"):
         stats_impl("triton")
     assert stats_impl("auto") == "torch" and stats_impl("torch") == "torch"
+    # where Triton can run, CPU tensors (the stand-in tests' gsplat on the CPU) still take the torch chunks
+    monkeypatch.setattr(gsplat_stats, "unavailable_reason", lambda: None)
+    assert stats_impl("auto", torch.device("cpu")) == "torch" and stats_impl("triton", torch.device("cpu")) == "torch"
+    assert stats_impl("auto", torch.device("cuda")) == "triton"
+
+
+def test_standin_statistics_take_the_torch_chunks_where_triton_runs(monkeypatch):
+    """The stand-in tests pass CPU tensors through the gsplat backend; on a machine with CUDA and Triton (the GPU
+    check's) `auto` must not hand them to the Triton kernel (the first H200 check failed 8 tests so)."""
+    from bench.slam import gsplat_stats
+
+    monkeypatch.setattr(gsplat_stats, "unavailable_reason", lambda: None)
+
+    def refuse(*a, **k):
+        raise AssertionError("the Triton kernel got CPU tensors")
+
+    monkeypatch.setattr(gsplat_stats, "pair_stats_triton", refuse)
+    test_backend_code_over_the_standin_agrees_with_reference(monkeypatch, *STANDIN_CASE)
