@@ -40,6 +40,10 @@ class DensifyConfig:
     # the cap as a rule fixed before the runs, not read off them: after keyframe k (0-based) the map holds at most
     # cap_per_mpix_kf x the image's megapixels x (k + 1) Gaussians (the lower of the two where cap is set too)
     cap_per_mpix_kf: float | None = setting(None, "float", lo=0.0, lo_open=True, nullable=True)
+    # the rule's floor: its cap is never below this many Gaussians per pixel of one image. Why: the rule alone
+    # allows 14,576 x 0.015 MP = 224 Gaussians after the first keyframe at 160x96, fewer than one view needs, and
+    # every run under it lost tracking at frame 1 (reports/memory_rule); 1.0 = one view seeded at every pixel
+    cap_floor_per_px: float | None = setting(None, "float", lo=0.0, lo_open=True, nullable=True)
     # at the cap, a strategy without a score (none, and every strategy whose score hook returns None):
     # "drop" = no Gaussian is removed, the seeds beyond the cap are not added; "opacity" = rank by opacity
     unscored: str = setting("drop", "str", choices=CAP_UNSCORED)
