@@ -1,9 +1,9 @@
 """The gsplat backend's per-Gaussian statistics in one GPU kernel (Triton), for ``slam.gsplat_stats=triton``.
 
 ``bench.slam.raster_gsplat.pair_stats`` computes coverage, hit count and max blending weight in torch, over chunks
-of whole tiles that bound its temporaries; each chunk is some thirty small kernels, so a full-resolution frame
-(thousands of tiles) launches tens of thousands of them, and the host's launch time, not the GPU, sets the
-pace (profiling/gpu_profile.py). This kernel does the same work with one program per tile: it walks the tile's
+of whole tiles that bound its temporaries; each chunk is a few dozen small kernels and a full-resolution frame has
+thousands of tiles, so the host's launch time, not the GPU, sets the pace (profiling/gpu_profile.py;
+reports/gpu/README.md has the profile). This kernel does the same work with one program per tile: it walks the tile's
 pairs front to back over the tile's 256 pixels at once, as gsplat's compositing kernel does, keeps each pixel's
 log-transmittance in float64, and adds each pair's figures into the Gaussian's with atomics. It holds no pair x
 pixel temporaries, so the statistics add nothing to the peak beyond their outputs.
