@@ -16,20 +16,17 @@ sums run in another order (a tile's pixels summed in the kernel, pairs added by 
 float rounding, not bit for bit; coverage accumulates in float64 as ``pair_stats`` does.
 
 Triton is not a dependency of the package: it comes with CUDA builds of torch. Without it (or without CUDA) the
-torch path runs; ``available()`` says which.
+torch path runs; ``unavailable_reason()`` says why.
 """
 
 from __future__ import annotations
 
 import functools
-import math
 from typing import Any
 
 import torch
 
-TILE_PX = 16
-ALPHA_MIN = 1.0 / 255.0
-LOG_T_STOP = math.log(1e-4)
+from bench.slam.raster_gsplat import ALPHA_MIN, LOG_T_STOP, TILE_PX  # gsplat's rules, as the torch chunks use them
 
 
 @functools.lru_cache(maxsize=1)
