@@ -38,6 +38,7 @@ tmp=$(mktemp -d)
   && zip -q -r -9 "$OLDPWD"/.gpu/whl/gsplat-1.5.3-py3-none-any.whl gsplat gsplat-1.5.3.dist-info)
 rm -rf "$tmp"
 cp -r "$SHARED/sequences/06" .gpu/kitti/sequences/ && cp "$SHARED/poses/06.txt" .gpu/kitti/poses/
-git -c uploadpack.allowFilter=true clone -q --bare --depth 1 --filter=blob:none "file://$PWD" .gpu/git
+git clone -q --bare --depth 1 --filter=blob:none --upload-pack="git -c uploadpack.allowFilter=true upload-pack" \
+  "file://$PWD" .gpu/git
 du -sh .gpu/*
 echo "the tree a call carries: $(git ls-files -co --exclude-standard -z | du -cb --files0-from=- 2>/dev/null | tail -1)"
