@@ -162,7 +162,21 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
         "",
         "mapping iterations the keyframe got: `slam.mapping_iters`, more under `slam.mapping_fit_psnr_db`",
     ),
+    # the tracked path against the true one (bench/metrics/trajectory.py:window_path_ratios), so a drift shows
+    # where it starts; null without ground truth
+    Field("path_length_m", "m", "ground-truth path length from the previous keyframe's frame to this one's"),
+    Field(
+        "path_length_ratio",
+        "",
+        "estimated / ground-truth path length over that window, unaligned; null for keyframe 0 and a still camera",
+    ),
+    Field(
+        "path_length_ratio_prefix",
+        "",
+        "... over every frame so far (what metrics.json's `path_length_ratio` would read had the run ended here)",
+    ),
 )
+PATH_WINDOW_COLUMNS: tuple[str, ...] = ("path_length_m", "path_length_ratio", "path_length_ratio_prefix")
 FIT_COLUMNS: tuple[str, ...] = ("kf_psnr_db", "kf_psnr_depth_db", "kf_psnr_nodepth_db", "kf_depth_frac")
 # a row's image metrics: the map as it was when the row was taken, under eval.protocol
 _ROW_IMAGE_FIELDS: tuple[Field, ...] = (
