@@ -293,6 +293,12 @@ METRIC_FIELDS: tuple[Field, ...] = (
     Field("num_frames", "", "frames tracked"),
     Field("keep_ratio", "", "as `run.keep_ratio` (null when nothing is pruned or the target is absolute)"),
     Field("num_keyframes", "", "keyframe windows (rows of keyframes.csv)"),
+    Field(
+        "tracking_velocity_starts",
+        "",
+        "tracked frames whose start was the constant-velocity guess: `slam.tracking_init=velocity`, or flow + "
+        "PnP found too few corners (`slam.flow_pnp.min_inliers`), so the feature term had none to hold",
+    ),
     Field("gaussians_final", "", "Gaussians in the final map"),
     Field("gaussians_peak", "", "largest `n_gaussians` over the windows and at the end (after the last keyframe)"),
     Field("gaussians_added_total", "", "sum of `n_added`: with the totals below, whether pruning shrank the map"),

@@ -55,6 +55,13 @@ def test_splatam_protocol_run_records_its_mask(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+def test_velocity_starts_are_counted(tmp_path: Path) -> None:
+    assert _run(tmp_path / "v", ["slam.tracking_init=velocity"])["tracking_velocity_starts"] == 3  # frames 1-3
+    assert _run(tmp_path / "f", ["slam.flow_pnp.min_inliers=100000"])["tracking_velocity_starts"] == 3  # no start
+    assert _run(tmp_path / "p", [])["tracking_velocity_starts"] < 3  # flow + PnP starts some frames
+
+
+@pytest.mark.slow
 def test_released_protocol_run_scores_ms_ssim_where_the_image_allows(tmp_path: Path) -> None:
     m = _run(tmp_path, ["eval.protocol=released", "dataset.width=192", "dataset.height=176"])
     assert m["eval_protocol"] == "released" and "eval_depth_range_m" not in m  # the silhouette needs no depth
