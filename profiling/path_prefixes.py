@@ -6,12 +6,16 @@ For each run dir (traj_est.txt and traj_gt.txt, as a finished run leaves them) p
 and the step ratio (estimated over true metres) in consecutive blocks of ``--block`` frames, so a
 drift shows where it starts. Unaligned, frames paired by position, as keyframes.csv's path columns.
 
-    python profiling/path_prefixes.py RUN_DIR [RUN_DIR ...] [--min-frames=20] [--block=10]
+    python profiling/path_prefixes.py RUN_DIR [RUN_DIR ...] [--min-frames=20] [--block=10] [--out=PATH.csv]
+
+``--out`` also writes one row per run dir, with its commit and the settings that set it apart
+(its config.yaml's slam.feature_weight, dataset.stride, and the tracking learning rates).
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import sys
 from pathlib import Path
@@ -42,9 +46,12 @@ def summary(run: Path, min_frames: int, block: int) -> dict:
         for b in range(0, n - 1, block)
         if g[min(b + block, n - 1)] > g[b]
     ]
-    m = json.loads((run / "metrics.json").read_text())["metrics"] if (run / "metrics.json").exists() else {}
+    record = json.loads((run / "metrics.json").read_text()) if (run / "metrics.json").exists() else {}
+    m = record.get("metrics", {})
     return {
         "run": run.name,
+        "commit": (record.get("provenance", {}).get("git_commit") or "")[:7],
+        "git_dirty": record.get("provenance", {}).get("git_dirty"),
         "frames": n,
         "ate_m": m.get("ate_rmse_m"),
         "ratio": round(float(pre[-1]), 4),
@@ -61,9 +68,33 @@ def main() -> None:
     ap.add_argument("runs", nargs="+", type=Path)
     ap.add_argument("--min-frames", type=int, default=20)
     ap.add_argument("--block", type=int, default=10)
+    ap.add_argument("--out", type=Path, help="also write the rows to this csv")
     args = ap.parse_args()
+    rows = []
     for run in args.runs:
-        print(json.dumps(summary(run, args.min_frames, args.block)))
+        row = summary(run, args.min_frames, args.block)
+        print(json.dumps(row))
+        rows.append({**row, **settings(run)})
+    if args.out is not None:
+        with open(args.out, "w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            w.writeheader()
+            for row in rows:
+                w.writerow({k: " ".join(map(str, v)) if isinstance(v, list) else v for k, v in row.items()})
+
+
+def settings(run: Path) -> dict:
+    """The run's settings this script's tables compare (from its config.yaml)."""
+    from omegaconf import OmegaConf
+
+    cfg = OmegaConf.load(run / "config.yaml")
+    return {
+        "seq": str(cfg.get("seq")),
+        "stride": cfg.dataset.get("stride"),
+        "slam_preset": cfg.slam.get("name"),
+        "feature_weight": cfg.slam.get("feature_weight"),
+        "tracking_lr_trans": cfg.slam.get("tracking_lr_trans"),
+    }
 
 
 if __name__ == "__main__":
