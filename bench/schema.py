@@ -162,7 +162,21 @@ KEYFRAME_FIELDS: tuple[Field, ...] = (
         "",
         "mapping iterations the keyframe got: `slam.mapping_iters`, more under `slam.mapping_fit_psnr_db`",
     ),
+    # the tracked path against the true one (bench/metrics/trajectory.py:window_path_ratios), so a drift shows
+    # where it starts; null without ground truth
+    Field("path_length_m", "m", "ground-truth path length from the previous keyframe's frame to this one's"),
+    Field(
+        "path_length_ratio",
+        "",
+        "estimated / ground-truth path length over that window, unaligned; null for keyframe 0 and a still camera",
+    ),
+    Field(
+        "path_length_ratio_prefix",
+        "",
+        "... over every frame so far (what metrics.json's `path_length_ratio` would read had the run ended here)",
+    ),
 )
+PATH_WINDOW_COLUMNS: tuple[str, ...] = ("path_length_m", "path_length_ratio", "path_length_ratio_prefix")
 FIT_COLUMNS: tuple[str, ...] = ("kf_psnr_db", "kf_psnr_depth_db", "kf_psnr_nodepth_db", "kf_depth_frac")
 # a row's image metrics: the map as it was when the row was taken, under eval.protocol
 _ROW_IMAGE_FIELDS: tuple[Field, ...] = (
@@ -285,6 +299,12 @@ METRIC_FIELDS: tuple[Field, ...] = (
     Field("num_frames", "", "frames tracked"),
     Field("keep_ratio", "", "as `run.keep_ratio` (null when nothing is pruned or the target is absolute)"),
     Field("num_keyframes", "", "keyframe windows (rows of keyframes.csv)"),
+    Field(
+        "tracking_velocity_starts",
+        "",
+        "tracked frames whose start was the constant-velocity guess: `slam.tracking_init=velocity`, or flow + "
+        "PnP found too few corners (`slam.flow_pnp.min_inliers`), so the feature term had none to hold",
+    ),
     Field("gaussians_final", "", "Gaussians in the final map"),
     Field("gaussians_peak", "", "largest `n_gaussians` over the windows and at the end (after the last keyframe)"),
     Field("gaussians_added_total", "", "sum of `n_added`: with the totals below, whether pruning shrank the map"),

@@ -101,3 +101,16 @@ def test_mapping_is_checked_against_the_dataclass():
         as_config(KittiConfig, {"dwnscale": 2})
     with pytest.raises(ConfigError, match="dataset.stride: expected an integer >= 1, found 0"):
         as_config(KittiConfig, {"stride": 0})
+
+
+@pytest.mark.parametrize("preset", ["default", "faithful_fit", "splatam"])
+def test_kitti_tracks_with_the_corners_in_every_preset(preset: str):
+    """bench/conf/slam_dataset/kitti.yaml: the feature term on KITTI whatever the preset; nowhere else; the
+    command line still wins."""
+    assert to_run_config(compose_cfg("dataset=kitti", f"slam={preset}")).slam.feature_weight == 2.0
+    assert (
+        to_run_config(compose_cfg("dataset=kitti", f"slam={preset}", "slam.feature_weight=0")).slam.feature_weight == 0
+    )
+    assert to_run_config(compose_cfg("dataset=euroc", f"slam={preset}")).slam.feature_weight == (
+        2.0 if preset.startswith("faithful") else 0.0
+    )

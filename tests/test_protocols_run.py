@@ -46,6 +46,19 @@ def test_splatam_protocol_run_records_its_mask(tmp_path: Path) -> None:
     with open(tmp_path / "milestones.csv", newline="") as fh:
         (row,) = list(csv.DictReader(fh))
     assert row["frames"] == "3" and float(row["path_length_ratio"]) > 0 and row["ms_ssim"] == ""
+    with open(tmp_path / "keyframes.csv", newline="") as fh:
+        kfs = list(csv.DictReader(fh))
+    assert kfs[0]["path_length_ratio"] == kfs[0]["path_length_ratio_prefix"] == ""  # keyframe 0: no path yet
+    assert all(float(r["path_length_m"]) > 0 and float(r["path_length_ratio"]) > 0 for r in kfs[1:])
+    assert kfs[-1]["frame"] == "3"  # the last frame is a keyframe: its prefix is the whole run's ratio
+    assert float(kfs[-1]["path_length_ratio_prefix"]) == pytest.approx(m["path_length_ratio"], abs=1e-4)
+
+
+@pytest.mark.slow
+def test_velocity_starts_are_counted(tmp_path: Path) -> None:
+    assert _run(tmp_path / "v", ["slam.tracking_init=velocity"])["tracking_velocity_starts"] == 3  # frames 1-3
+    assert _run(tmp_path / "f", ["slam.flow_pnp.min_inliers=100000"])["tracking_velocity_starts"] == 3  # no start
+    assert _run(tmp_path / "p", [])["tracking_velocity_starts"] < 3  # flow + PnP starts some frames
 
 
 @pytest.mark.slow

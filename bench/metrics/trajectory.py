@@ -251,6 +251,32 @@ def path_length_ratio(est: Trajectory, gt: Trajectory, max_diff_s: float = MAX_D
     return float(distance_along(traj_est.positions_xyz)[-1]) / true_m
 
 
+def window_path_ratios(
+    est_m: np.ndarray,  # [N, 3] estimated camera positions, frame by frame
+    gt_m: np.ndarray,  # [N, 3] true camera positions of the same frames
+    start: int,  # the window's first frame (a position in both arrays); the window ends at the last
+) -> dict[str, float | None]:
+    """Path lengths of a keyframe window, so a drift shows where it starts (keyframes.csv).
+
+    ``path_length_m``: the true path from frame ``start`` to the last frame; ``path_length_ratio``: the
+    estimated path over it; ``path_length_ratio_prefix``: the same ratio from the first frame to the
+    last (what ``path_length_ratio`` in metrics.json would read had the drive ended here). Unaligned, as
+    ``path_length_ratio``; frames pair by position (no timestamp association). A ratio whose true path
+    has no length (the first keyframe, a camera standing still) is None.
+    """
+    if est_m.shape != gt_m.shape or est_m.ndim != 2 or est_m.shape[-1] != 3:
+        raise MetricError(f"window_path_ratios: expected two [N, 3] arrays, found {est_m.shape} and {gt_m.shape}")
+    if not 0 <= start < len(est_m):
+        raise MetricError(f"window_path_ratios: expected a start in [0, {len(est_m)}), found {start}")
+    est_along, gt_along = distance_along(est_m), distance_along(gt_m)  # [N] each
+    true_win, true_all = float(gt_along[-1] - gt_along[start]), float(gt_along[-1])
+    return {
+        "path_length_m": true_win,
+        "path_length_ratio": float(est_along[-1] - est_along[start]) / true_win if true_win > 0 else None,
+        "path_length_ratio_prefix": float(est_along[-1]) / true_all if true_all > 0 else None,
+    }
+
+
 def drift_components(est: Trajectory, gt: Trajectory, max_diff_s: float = MAX_DIFF_S) -> dict[str, np.ndarray]:
     """Per associated frame, the unaligned position error split into the part within the plane of the
     ground-truth path and the part off it, with the metres driven by then.
@@ -325,6 +351,7 @@ __all__ = [
     "aligned_positions",
     "ate",
     "path_length_ratio",
+    "window_path_ratios",
     "read_tum",
     "rpe",
     "write_tum",

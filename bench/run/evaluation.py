@@ -61,6 +61,7 @@ def finish(
     metrics.update(schema.memory_summary([*drive.windows, drive.tail], device.type))
     metrics.update(schema.regime_summary(drive.windows, (system.H, system.W), metrics[schema.PEAK_SOURCE_FIELD]))
     metrics["gaussians_final"] = len(system.map)
+    metrics["tracking_velocity_starts"] = system.init_source.count("velocity")
     # churn: did pruning shrink the map, or only feed re-seeding?
     metrics["gaussians_added_total"] = sum(w["n_added"] for w in drive.windows)
     metrics["gaussians_pruned_total"] = sum(w["n_pruned"] for w in drive.windows)

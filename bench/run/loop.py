@@ -19,7 +19,7 @@ from bench import schema
 from bench.config.compose import RunConfig
 from bench.errors import BenchError, TrackingLost
 from bench.measure.progress import Phase
-from bench.metrics.trajectory import TumAppender
+from bench.metrics.trajectory import TumAppender, window_path_ratios
 from bench.run import checkpoint as ckpt
 from bench.run.evaluation import evaluate, tracked_c2w
 from bench.run.export import save_snapshot
@@ -122,6 +122,7 @@ def run_frames(
                     }
                 else:
                     row = keyframe_row(parts, res, frame.index, between)
+                    row.update(path_window(system, drive, drive.windows[-1]["frame"] if drive.windows else i))
                     between = dict.fromkeys(between, 0)
                     keyframes.writerow(row)
                     drive.windows.append(row)
@@ -264,6 +265,18 @@ def keyframe_row(parts: RunSetup, res: FrameResult, frame_index: int, between: d
         **{k: _round(diag.get(k)) for k in schema.FIT_COLUMNS},
         "kf_map_iters": diag.get("kf_map_iters"),
     }
+
+
+def path_window(system: Any, drive: LoopOutcome, start: int) -> dict[str, float | None]:
+    """keyframes.csv's path columns for the window from tracked frame ``start`` to the last one tracked:
+    null without ground truth for every frame so far."""
+    n_done = len(drive.gt_c2w)
+    if any(g is None for g in drive.gt_c2w):
+        return dict.fromkeys(schema.PATH_WINDOW_COLUMNS)
+    est = torch.stack(tracked_c2w(system, n_done))[:, :3, 3].numpy()  # [F, 3] m
+    gt = torch.stack([g.double().cpu() for g in drive.gt_c2w if g is not None])[:, :3, 3].numpy()  # [F, 3] m
+    got = window_path_ratios(est, gt, start)
+    return {k: None if v is None else round(v, 5) for k, v in got.items()}
 
 
 def memory_parts(

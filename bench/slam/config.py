@@ -104,7 +104,8 @@ class SlamConfig:
     # loss follows the map's geometry, which stereo depth leaves wrong on foliage and far facades, and on a
     # straight road it pulls the pose back along the optical axis; the corners hold the scale there. The
     # released LSG-SLAM code adds a feature-warping term for the same reason (use_warp_loss, weight_warp=10);
-    # this term is ours, in pixels, not theirs.
+    # this term is ours, in pixels, not theirs. On (2) with dataset=kitti in every preset
+    # (bench/conf/slam_dataset/kitti.yaml).
     feature_weight: float = setting(0.0, "float", lo=0.0)
     depth_loss_max_m: float = 30.0  # far pixels (sky, distant road) only constrain colour
     depth_far_m: float | None = 60.0  # Gaussians beyond this add no depth (see rasterize); None = all do

@@ -53,7 +53,7 @@ class Tracking(SystemState):
                         )
                     self.init_source.append("flow_pnp")
                     return torch.as_tensor(rel, dtype=prev.dtype, device=prev.device) @ prev
-            self.init_source.append("velocity")
+        self.init_source.append("velocity")
         return velocity @ prev
 
     def _track(

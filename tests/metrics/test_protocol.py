@@ -211,3 +211,24 @@ def test_path_length_ratio_is_estimated_over_true_length() -> None:
     assert path_length_ratio(_line(0.88), _line(1.0)) == pytest.approx(0.88)  # 12% short: scale lost
     assert path_length_ratio(_line(1.0), _line(1.0)) == 1.0
     assert path_length_ratio(_line(1.0), _line(0.0)) is None  # a camera that stood still has no ratio
+
+
+def test_window_path_ratios_show_where_a_drift_starts() -> None:
+    from bench.errors import MetricError
+    from bench.metrics.trajectory import window_path_ratios
+
+    gt = np.column_stack([np.zeros(7), np.zeros(7), np.arange(7) * 1.0])  # [7, 3] 1 m a frame
+    est = gt.copy()
+    est[4:, 2] = 3.0 + (np.arange(4, 7) - 3) * 0.5  # on scale to frame 3, then half the speed
+    assert window_path_ratios(est, gt, 0)["path_length_ratio"] == pytest.approx(4.5 / 6)
+    late = window_path_ratios(est, gt, 3)  # the window frames 3-6: where the drift is
+    assert late["path_length_m"] == pytest.approx(3.0) and late["path_length_ratio"] == pytest.approx(0.5)
+    assert late["path_length_ratio_prefix"] == pytest.approx(4.5 / 6)
+    assert window_path_ratios(est[:4], gt[:4], 0)["path_length_ratio_prefix"] == pytest.approx(1.0)
+    assert window_path_ratios(est[:1], gt[:1], 0) == {
+        "path_length_m": 0.0, "path_length_ratio": None, "path_length_ratio_prefix": None
+    }  # fmt: skip
+    with pytest.raises(MetricError, match="expected a start"):
+        window_path_ratios(est, gt, 7)
+    with pytest.raises(MetricError, match=r"\[N, 3\]"):
+        window_path_ratios(est[:, :2], gt[:, :2], 0)
