@@ -71,6 +71,6 @@ def test_an_entry_reads_the_folder(tmp_path, monkeypatch):
     assert "- **Runs.** 6 in `runs.csv`, at dd5bd5f (" in text
     assert "- **Provenance.** made from runs with uncommitted changes: 2 of 6." in text
     assert "- **Answer.** On ATE and PSNR yes (p = 0.017 and 0.003)," in text  # claims taken out
-    assert "- **Runs.** 4 in `runs.csv`, at abd6fac (" in text  # gpu/: a check's runs, brought back from the GPU
+    assert "- **Recorded.** 2026-11-28 at c7b8731 (before) and abd6fac (after)" in text  # gpu/: a device check's record
     assert "- **Recorded.** 2026-11-26 at fe65fab (no committed runs" in text  # criteria/: a script's record
     assert "- **Study.** `conf/study/noise.yaml`" not in text  # no conf/study beside this copy
