@@ -1,7 +1,10 @@
-"""The import graph of ``bench/`` and ``strategies/``: no circles, and plugins see only the public contract.
+"""The import graph of ``bench/`` and ``strategies/``: layers that point one way, no circles, and plugins
+see only the public contract.
 
 Every import counts, those inside functions too (a deferred import only hides a circle until the
-day someone moves it to the top), except those under ``if TYPE_CHECKING:``, which never run.
+day someone moves it to the top). For circles, imports under ``if TYPE_CHECKING:`` are left out (they
+never run); for the layer order they count too, since a type named from a higher layer still ties a
+lower module to it. The layer order is written in ``docs/architecture.md`` ("Layers").
 """
 
 from __future__ import annotations
@@ -14,6 +17,24 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("bench", "strategies")
 
+# The layers from the bottom: a module imports only from its own layer or the ones below it.
+# Each entry: the layer's name and the module prefixes in it (the longest matching prefix decides).
+LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    (
+        "errors, schema, names, files",
+        ("bench", "bench.errors", "bench.schema", "bench.names", "bench.fileio", "bench.conf"),
+    ),
+    ("settings", ("bench.config",)),
+    ("measure and metrics", ("bench.measure", "bench.metrics")),
+    ("slam, datasets, the plugin contract", ("bench.slam", "bench.datasets", "bench.api", "strategies")),
+    ("run", ("bench.run",)),
+    ("sweep, report, viewer", ("bench.sweep", "bench.report", "bench.viewer")),
+    (
+        "cli",
+        ("bench.cli", "bench.__main__", "bench.export", "bench.view", "bench.study", "bench.list_strategies"),
+    ),
+)
+
 
 def _module_name(path: Path) -> str:
     parts = path.relative_to(REPO).with_suffix("").parts
@@ -24,24 +45,25 @@ def _modules() -> dict[str, Path]:
     return {_module_name(p): p for pkg in PACKAGES for p in sorted((REPO / pkg).rglob("*.py"))}
 
 
-def _runtime_nodes(tree: ast.AST):
-    """Every node except what sits under ``if TYPE_CHECKING:``."""
+def _runtime_nodes(tree: ast.AST, typing: bool = False):
+    """Every node except what sits under ``if TYPE_CHECKING:`` (with ``typing``, every node)."""
     stack = [tree]
     while stack:
         node = stack.pop()
         yield node
         for child in ast.iter_child_nodes(node):
-            if isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test):
+            if not typing and isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test):
                 stack.extend(child.orelse)
                 continue
             stack.append(child)
 
 
-def imports_of(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
-    """The project modules ``name`` imports (``from a import b`` is module ``a.b`` where that is one)."""
+def imports_of(name: str, path: Path, modules: dict[str, Path], typing: bool = False) -> set[str]:
+    """The project modules ``name`` imports (``from a import b`` is module ``a.b`` where that is one);
+    with ``typing``, those under ``if TYPE_CHECKING:`` too."""
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     found = set()
-    for node in _runtime_nodes(ast.parse(path.read_text(), str(path))):
+    for node in _runtime_nodes(ast.parse(path.read_text(), str(path)), typing):
         if isinstance(node, ast.Import):
             targets = [alias.name for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
@@ -56,9 +78,26 @@ def imports_of(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
     return found
 
 
-def import_graph() -> dict[str, set[str]]:
+def import_graph(typing: bool = False) -> dict[str, set[str]]:
     modules = _modules()
-    return {name: imports_of(name, path, modules) for name, path in modules.items()}
+    return {name: imports_of(name, path, modules, typing) for name, path in modules.items()}
+
+
+def layer_of(name: str) -> int:
+    """The index in ``LAYERS`` of the layer whose longest prefix matches module ``name``."""
+    best, best_len = -1, -1
+    for i, (_, prefixes) in enumerate(LAYERS):
+        for prefix in prefixes:
+            if (name == prefix or name.startswith(prefix + ".")) and len(prefix) > best_len:
+                best, best_len = i, len(prefix)
+    if best < 0:
+        raise AssertionError(f"module {name} is in no layer; add its prefix to LAYERS (and docs/architecture.md)")
+    return best
+
+
+def upward_imports(graph: dict[str, set[str]]) -> list[tuple[str, str]]:
+    """Each import (importer, imported) from a lower layer up to a higher one."""
+    return sorted((a, b) for a, targets in graph.items() for b in targets if layer_of(b) > layer_of(a))
 
 
 def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
@@ -107,11 +146,33 @@ def test_the_graph_sees_deferred_imports():
     assert "bench.run.lifecycle" in graph["bench.cli.entry"]  # imported inside a function
 
 
-def test_no_import_cycles_in_bench_and_strategies():
-    graph = import_graph()
+@pytest.mark.parametrize("typing", [False, True], ids=["runtime", "with-type-only"])
+def test_no_import_cycles_in_bench_and_strategies(typing):
+    graph = import_graph(typing)
     found = cycles(graph)
     print(f"{len(graph)} modules, {sum(map(len, graph.values()))} imports, {len(found)} cycles")
     assert found == [], "import cycles: " + "; ".join(" <-> ".join(c) for c in found)
+
+
+def test_the_checker_finds_an_upward_import():
+    assert upward_imports(
+        {"bench.run.setup": {"bench.cli.entry", "bench.errors"}, "bench.cli.entry": {"bench.run"}}
+    ) == [("bench.run.setup", "bench.cli.entry")]
+    assert layer_of("bench.config.settings") < layer_of("bench.slam.system") < layer_of("bench.run.loop")
+
+
+def test_every_module_has_a_layer():
+    for name in _modules():
+        layer_of(name)
+
+
+def test_no_import_points_up():
+    """Each layer imports only from itself and the layers below it (docs/architecture.md, "Layers")."""
+    found = upward_imports(import_graph(typing=True))
+    names = [n for n, _ in LAYERS]
+    assert found == [], f"{len(found)} imports point up: " + "; ".join(
+        f"{a} ({names[layer_of(a)]}) -> {b} ({names[layer_of(b)]})" for a, b in found
+    )
 
 
 @pytest.mark.parametrize("name", sorted(n for n in _modules() if n.startswith("strategies")))
