@@ -31,7 +31,16 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("sweep, report, viewer", ("bench.sweep", "bench.report", "bench.viewer")),
     (
         "cli",
-        ("bench.cli", "bench.__main__", "bench.export", "bench.view", "bench.study", "bench.list_strategies"),
+        # the commands, and one kept at its documented path in its package (python -m bench.datasets.prepare)
+        (
+            "bench.cli",
+            "bench.__main__",
+            "bench.export",
+            "bench.view",
+            "bench.study",
+            "bench.list_strategies",
+            "bench.datasets.prepare",
+        ),
     ),
 )
 

@@ -33,8 +33,8 @@ def load_cfg(name: str, overrides: list[str]) -> Any:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from bench.config.compose import register_configs
     from bench.config.settings import describe_error
+    from bench.run.config import register_configs
 
     files = group_files("dataset")  # ./conf/dataset/ first, then the shipped ones
     if name not in files:

@@ -19,7 +19,7 @@ import pandas as pd
 from bench import schema
 from bench.datasets import canonical_seq
 from bench.errors import ReportError
-from bench.report.names import method_name, synthetic_drive
+from bench.names import method_name, synthetic_drive
 from bench.report.settings import read_settings
 from bench.run.record import is_leftover
 

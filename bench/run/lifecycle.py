@@ -1,11 +1,11 @@
 """``run(cfg) -> RunResult``: one SLAM run wired end to end, writing its run directory.
 
-The composed Hydra config is validated and converted once (``bench.cli.validate.validate``, which also
+The composed Hydra config is validated and converted once (``bench.run.validate.validate``, which also
 builds the strategy and a given LPIPS model; the CLI's own check hands its result over); everything
 below receives dataclasses. A run reads as its data flows: ``bench.run.setup.build`` makes the SLAM
 system around the opened sequence, ``bench.run.loop.run_frames`` feeds it the frames and writes one
 ``keyframes.csv`` row per keyframe window, ``bench.run.evaluation.finish`` refines, summarises memory,
-evaluates and plots. Its keys come from ``bench.config.identity``.
+evaluates and plots. Its keys come from ``bench.run.identity``.
 
 Everything a run learns is written as it goes: ``keyframes.csv`` rows are flushed per keyframe
 window and ``metrics.json`` is replaced atomically (``bench.run.record.RunRecord``, its one writer),
@@ -28,19 +28,18 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from bench import schema
-from bench.cli.validate import ValidatedRun, validate
 from bench.conf import config_files
-from bench.config.compose import RunConfig
-from bench.config.identity import run_keys
 from bench.config.settings import plain
 from bench.datasets import FrameSequence
 from bench.errors import BenchError, ConfigError
 from bench.fileio import link_message, planted_links
-from bench.report.figures.pruned_run import PruneViz
 from bench.run import checkpoint as ckpt
 from bench.run import evaluation, job_outputs, loop, provenance
+from bench.run.config import RunConfig
 from bench.run.determinism import repeatable
 from bench.run.export import MAP_FILE
+from bench.run.figures.pruned_run import PruneViz
+from bench.run.identity import run_keys
 from bench.run.lock import run_dir_lock
 from bench.run.loop import TRAJ_EST, flushed_rows
 from bench.run.record import RunRecord, is_leftover, owner, promote, read_record, record_refusal, write_text
@@ -54,6 +53,7 @@ from bench.run.signals import (
     raise_on_signals,
     signal_behind,
 )
+from bench.run.validate import ValidatedRun, validate
 
 log = logging.getLogger(__name__)
 
@@ -99,7 +99,7 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
     refused run leaves no half-made dir; a stored run is skipped only when config, code version
     and input files all match (``bench.run.resume``); once running, SIGINT/SIGTERM end the run as
     ``interrupted`` with what the frames done allow (then ``Interrupted`` is re-raised).
-    ``built``: what ``bench.cli.validate.validate`` made of this same config already (the CLI's check
+    ``built``: what ``bench.run.validate.validate`` made of this same config already (the CLI's check
     before Hydra starts), used as it is; a config that differs from it is validated again.
     """
     if isinstance(cfg, RunConfig):

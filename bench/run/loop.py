@@ -9,20 +9,20 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from bench import schema
-from bench.config.compose import RunConfig
 from bench.errors import BenchError, TrackingLost
 from bench.measure.progress import Phase
 from bench.metrics.trajectory import TumAppender
 from bench.run import checkpoint as ckpt
+from bench.run.config import RunConfig
 from bench.run.evaluation import evaluate, tracked_c2w
 from bench.run.export import save_snapshot
+from bench.run.outcome import LoopOutcome
 from bench.run.record import RunRecord
 from bench.run.rows import FlushedRows
 from bench.run.setup import RunSetup, inner_strategy
@@ -33,21 +33,6 @@ from bench.slam.system import FrameResult
 log = logging.getLogger(__name__)
 
 TRAJ_EST = "traj_est.txt"
-
-
-@dataclass
-class LoopOutcome:
-    """What the frame loop leaves behind."""
-
-    status: str = "ok"  # ok | lost | interrupted | failed (bad data mid-run)
-    error: str | None = None
-    stop: Interrupted | None = None  # the signal that ended the loop, re-raised once the record is written
-    timestamps_s: list[float] = field(default_factory=list)
-    gt_c2w: list[torch.Tensor | None] = field(default_factory=list)
-    windows: list[dict[str, Any]] = field(default_factory=list)  # the keyframes.csv rows
-    loop_s: float = 0.0  # SLAM wall time after the warm-up frames
-    warmup_s: float = 0.0  # the warm-up frames' time, left out of loop_s and fps
-    tail: dict[str, Any] = field(default_factory=dict)  # peaks and map size of the frames after the last keyframe
 
 
 def flushed_rows(out: Path) -> dict[str, int]:

@@ -26,7 +26,7 @@ __all__ = ["GROUP", "Job", "Study", "check_name", "expand", "load", "main", "par
 def load(name: str, extra: Sequence[str] = ()) -> tuple[Study, list[Job]]:
     """Study ``name`` from ``./conf/study/`` (or the package's), and each of its runs with its dir
     (``bench.sweep.plan``: the dir the sweeper gives the job)."""
-    from bench.config.compose import compose
+    from bench.run.config import compose
     from bench.sweep.plan import job_dir, own_dirs
 
     check_name(name)

@@ -10,10 +10,10 @@ from pathlib import Path
 import pytest
 import yaml
 
+from bench.names import METHOD_NAMES
 from bench.report.__main__ import main
 from bench.report.build import load_labels, make_report
 from bench.report.collect import ReportError
-from bench.report.names import METHOD_NAMES
 
 PDF, SVG, PNG = b"%PDF-", b"<?xml", b"\x89PNG\r\n\x1a\n"
 REPO = Path(__file__).resolve().parents[2]

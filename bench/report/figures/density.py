@@ -10,9 +10,9 @@ import pandas as pd
 from matplotlib.colors import LogNorm
 from matplotlib.ticker import FormatStrFormatter, NullFormatter
 
+from bench.names import dataset_name, file_token
 from bench.report.figures.output import Warn, _image_axes, _save
 from bench.report.figures.runs import representative
-from bench.report.names import dataset_name, file_token
 from bench.report.style import (
     Panel,
     fig_title,

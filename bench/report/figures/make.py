@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from bench.names import sequence_sort_key
 from bench.report.figures.density import plot_density
 from bench.report.figures.drift import plot_drift
 from bench.report.figures.milestones import plot_milestones
@@ -15,7 +16,6 @@ from bench.report.figures.per_keyframe import MEMORY_VS_DISTANCE, PER_KEYFRAME, 
 from bench.report.figures.pruned import plot_pruned
 from bench.report.figures.ratio import plot_ratio
 from bench.report.figures.trajectory import plot_trajectory
-from bench.report.names import sequence_sort_key
 
 
 def make_plots(

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pandas as pd
 
+from bench.names import dataset_name, file_token
 from bench.report.figures.output import _save
 from bench.report.figures.ratio import _dataset_average, _per_seed_average
-from bench.report.names import dataset_name, file_token
 from bench.report.style import (
     apply_fonts,
     fig_title,

@@ -8,9 +8,9 @@ import pandas as pd
 from matplotlib.artist import Artist
 from matplotlib.patches import Patch
 
+from bench.names import dataset_name, file_token
 from bench.report.figures.output import Warn, _save
 from bench.report.figures.runs import KfValue, _peak, _runs_to_show, peak_column, seed_band
-from bench.report.names import dataset_name, file_token
 from bench.report.style import (
     apply_fonts,
     band,

@@ -6,10 +6,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from bench.report.figures import pruned_run as viz
+from bench.names import dataset_name, file_token
 from bench.report.figures.output import Warn, _image_axes, _save
 from bench.report.figures.runs import representative
-from bench.report.names import dataset_name, file_token
 from bench.report.style import (
     fig_title,
     new_figure,
@@ -18,6 +17,7 @@ from bench.report.style import (
     strategy_colour,
 )
 from bench.report.tables import Variant, variant_runs, variants
+from bench.run.figures import pruned_run as viz
 
 PRUNED_GLOB = viz.PRUNED_GLOB
 

@@ -10,8 +10,8 @@ import numpy as np
 import pandas as pd
 from matplotlib.patches import Patch
 
+from bench.names import dataset_name, file_token, method_name
 from bench.report.figures.output import _save
-from bench.report.names import dataset_name, file_token, method_name
 from bench.report.style import (
     apply_fonts,
     band,

@@ -15,10 +15,10 @@ from bench.metrics.trajectory import (
     aligned_positions,
     read_tum,
 )
+from bench.names import dataset_name, file_token
 from bench.report.collect import is_missing
 from bench.report.figures.output import Warn, _save
 from bench.report.figures.runs import representative
-from bench.report.names import dataset_name, file_token
 from bench.report.style import (
     Panel,
     apply_fonts,
