@@ -25,7 +25,7 @@ import numpy as np
 import yaml
 
 from bench.config.settings import as_config, setting
-from bench.datasets import _realio as realio
+from bench.datasets import realio
 from bench.datasets.base import FrameSequence
 from bench.datasets.stereo import DepthCache, StereoConfig, StereoParams, StereoSequence
 from bench.errors import DatasetError

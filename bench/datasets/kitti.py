@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from bench.config.settings import as_config, setting
-from bench.datasets import _realio as realio
+from bench.datasets import realio
 from bench.datasets.base import FrameSequence
 from bench.datasets.stereo import DepthCache, StereoConfig, StereoSequence
 from bench.errors import DatasetError

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from bench.config.settings import as_config, setting
-from bench.datasets import _realio as realio
+from bench.datasets import realio
 from bench.datasets.base import FrameSequence, RecordedConfig, TimedSequence
 from bench.errors import ConfigError, DatasetError
 from bench.metrics.timestamp_order import order_problem
