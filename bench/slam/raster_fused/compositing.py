@@ -10,7 +10,6 @@ from llvmlite import ir as llvm_ir
 from numba import njit, prange, types
 from numba.extending import intrinsic
 
-from bench.slam.raster_fused import threads as _threading_layer  # noqa: F401 - set before a parallel kernel runs
 from bench.slam.raster_fused.constants import ALPHA_MAX, ALPHA_MIN, COVERAGE_POWER_MIN, F32, N_FEAT, T_MIN, TILE
 
 LN255 = F32(math.log(255.0))

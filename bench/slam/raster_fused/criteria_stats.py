@@ -28,7 +28,6 @@ import numpy as np
 import torch
 from numba import njit, prange
 
-from bench.slam.raster_fused import threads as _threading_layer  # noqa: F401 - set before a parallel kernel runs
 from bench.slam.raster_fused.compositing import KERNEL_OPTIONS, LN255, exp_f32, pixel_box, reduce_sum, tile_pixels
 from bench.slam.raster_fused.constants import ALPHA_MAX, ALPHA_MIN, F32, T_MIN
 

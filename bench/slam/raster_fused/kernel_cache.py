@@ -19,6 +19,7 @@ from bench.slam.raster_fused.compositing import (
 )
 from bench.slam.raster_fused.criteria_stats import criteria_extra
 from bench.slam.raster_fused.projection import project_bwd, project_fwd, sum_rows
+from bench.slam.raster_fused.threads import use_threading_layer
 
 _COMPILING_ENV = "POCKETBENCH_COMPILING_KERNELS"
 _cache_checked = False
@@ -34,6 +35,7 @@ def load_from_cache() -> None:
     code it does. Where the cache cannot be written (or numba's internals differ), the kernels
     compile here as before."""
     global _cache_checked
+    use_threading_layer()  # before numba compiles or starts a thread, here or in the child below
     if _cache_checked or os.environ.get(_COMPILING_ENV):
         return
     _cache_checked = True

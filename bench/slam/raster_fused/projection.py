@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from bench.slam.raster_fused import threads as _threading_layer  # noqa: F401 - set before a parallel kernel runs
 from bench.slam.raster_fused.constants import F32, TILE
 
 PROJECT_BLOCK = 256  # Gaussians per block of the projection's backward (one set of scratch matrices each)
