@@ -22,7 +22,7 @@ PACKAGES = ("bench", "strategies")
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     (
         "errors, schema, names, files",
-        ("bench", "bench.errors", "bench.schema", "bench.names", "bench.fileio", "bench.conf"),
+        ("bench", "bench.errors", "bench.schema", "bench.rundir", "bench.names", "bench.fileio", "bench.conf"),
     ),
     ("settings", ("bench.config",)),
     ("measure and metrics", ("bench.measure", "bench.metrics")),

@@ -42,7 +42,7 @@ from bench.run.figures.pruned_run import PruneViz
 from bench.run.identity import run_keys
 from bench.run.lock import run_dir_lock
 from bench.run.loop import TRAJ_EST, flushed_rows
-from bench.run.record import RunRecord, is_leftover, owner, promote, read_record, record_refusal, write_text
+from bench.run.record import RunRecord, promote, read_record, record_refusal, write_text
 from bench.run.resume import redo_reason
 from bench.run.setup import build, describe, open_seq, restore
 from bench.run.signals import (
@@ -54,6 +54,7 @@ from bench.run.signals import (
     signal_behind,
 )
 from bench.run.validate import ValidatedRun, validate
+from bench.rundir import is_leftover, owner
 
 log = logging.getLogger(__name__)
 
