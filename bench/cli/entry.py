@@ -36,7 +36,7 @@ from bench.cli.argv import (
 )
 from bench.cli.help import register_resolvers
 from bench.conf import CONF_DIR
-from bench.errors import BenchError, ConfigError
+from bench.errors import BenchError, ConfigError, failed
 from bench.run.config import compose, register_configs
 from bench.sweep.summary import run_table
 
@@ -171,8 +171,7 @@ def main() -> int:
         check_overrides(sys.argv[1:])
         built = precheck(sys.argv[1:])
     except BenchError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_CONFIG
+        return failed(exc, EXIT_CONFIG)
     _PRECHECKED[:] = [built] if built is not None else []
     register_resolvers()
     _hydra_main()

@@ -22,7 +22,7 @@ from omegaconf import OmegaConf
 from bench.conf import CONF_DIR, group_files
 from bench.datasets import open_sequence
 from bench.datasets.stereo import StereoSequence
-from bench.errors import ArgumentParser, BenchError, ConfigError
+from bench.errors import ArgumentParser, BenchError, ConfigError, failed
 
 LOG = logging.getLogger("bench.datasets.prepare")
 
@@ -120,8 +120,7 @@ def main(argv: list[str] | None = None) -> int:
             cfg = dataclasses.replace(cfg, seq=args.seq)  # as typed: '06' stays '06'
         prepare(args.dataset, cfg)
     except BenchError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return failed(exc)
     return 0
 
 

@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from omegaconf import OmegaConf
 
 from bench.conf import group_files
-from bench.errors import ConfigError
+from bench.errors import ConfigError, failed
 from bench.sweep.studyfile import GROUP, Job, Study, check_file, check_name, expand, parse
 
 __all__ = ["GROUP", "Job", "Study", "check_name", "expand", "load", "main", "parse"]
@@ -68,8 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         study, jobs = load(argv[0], argv[1:])
     except ConfigError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return failed(exc)
     for job in jobs:
         print(f"{job.run_dir}  {' '.join(job.overrides)}")
     done = sum((job.run_dir / "metrics.json").is_file() for job in jobs)
