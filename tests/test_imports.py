@@ -190,3 +190,28 @@ def test_strategies_use_only_the_public_contract(name):
     modules = _modules()
     used = {m for m in imports_of(name, modules[name], modules) if m.startswith("bench")}
     assert used <= {"bench.api"}, f"{name} imports {sorted(used - {'bench.api'})}; use bench.api"
+
+
+def _main_of(name: str, path: Path, modules: dict[str, Path]) -> str | None:
+    """The function ``python -m name`` runs (``module.function``), where the module has a ``__main__`` block
+    calling a ``main`` it defines or imports; None for a module that is no command."""
+    tree = ast.parse(path.read_text(), str(path))
+    if not any(isinstance(n, ast.If) and "__main__" in ast.unparse(n.test) for n in tree.body):
+        return None
+    for node in tree.body:
+        if isinstance(node, ast.ImportFrom) and node.module in modules and any(a.name == "main" for a in node.names):
+            return f"{node.module}.main"
+    return f"{name}.main"
+
+
+def test_one_module_path_per_command():
+    """Each command runs under one ``python -m`` path: no two modules' ``__main__`` blocks run the same ``main``."""
+    modules = _modules()
+    runs: dict[str, list[str]] = {}
+    for name, path in modules.items():
+        target = _main_of(name, path, modules)
+        if target is not None:
+            runs.setdefault(target, []).append(name)
+    twice = {t: sorted(m) for t, m in runs.items() if len(m) > 1}
+    assert "bench.run.export.main" in runs, "the checker sees bench.export's command"
+    assert twice == {}, f"commands with two module paths: {twice}"
