@@ -69,15 +69,7 @@ def run_frames(
     )
     first = 0
     if start is not None:
-        done = json.loads(start["drive"]["json"])  # floats round-trip json exactly
-        drive.timestamps_s = start["drive"]["timestamps_s"].tolist()
-        drive.gt_c2w = list(start["drive"]["gt_c2w"])
-        drive.windows, drive.loop_s, drive.warmup_s = done["windows"], done["loop_s"], done["warmup_s"]
-        between = done["between"]
-        first = start["frame"]
-        metrics.update(num_frames=first, num_keyframes=len(drive.windows))
-        bar.update(first)
-    every = cfg.checkpoint.every
+        between, first = _resume(drive, start, metrics, bar)
     parts.probe.start_window()
     with (
         FlushedRows(out / schema.KEYFRAMES_FILE, schema.KEYFRAME_COLUMNS, start is not None) as keyframes,
@@ -115,13 +107,7 @@ def run_frames(
                         milestones.writerow(milestone_row(cfg, parts, drive, out))
                 if res.is_keyframe:
                     assert res.keyframe_index is not None  # System.step sets it with is_keyframe
-                    if cfg.save_maps == "every_keyframe":
-                        save_snapshot(out, res.keyframe_index, system.map)
-                    metrics["num_keyframes"] = len(drive.windows)
-                    if every and (res.keyframe_index + 1) % every == 0:
-                        write_checkpoint(cfg, parts, drive, out, record, between)
-                    record.save()  # still running; counts so far, for a later reader
-                    parts.probe.start_window()
+                    _close_window(cfg, parts, drive, out, record, between, res.keyframe_index)
                 bar.update(1, gaussians=len(system.map), fps=f"{(i + 1 - warmup) / max(drive.loop_s, 1e-9):.2f}")
                 if preempt is not None and preempt.signum is not None:  # held since it came: stop here, resumable
                     write_checkpoint(cfg, parts, drive, out, record, between)
@@ -144,6 +130,42 @@ def run_frames(
             drive.tail = {**parts.probe.end_window(), "n_gaussians": len(system.map)}
             parts.probe.close()
     return drive
+
+
+def _resume(
+    drive: LoopOutcome, start: dict[str, Any], metrics: dict[str, Any], bar: Phase
+) -> tuple[dict[str, Any], int]:
+    """A checkpoint's loop state put back into ``drive``, ``metrics`` and the progress bar; returns what the
+    frames since the last keyframe pruned, and the first frame still to run."""
+    done = json.loads(start["drive"]["json"])  # floats round-trip json exactly
+    drive.timestamps_s = start["drive"]["timestamps_s"].tolist()
+    drive.gt_c2w = list(start["drive"]["gt_c2w"])
+    drive.windows, drive.loop_s, drive.warmup_s = done["windows"], done["loop_s"], done["warmup_s"]
+    first = start["frame"]
+    metrics.update(num_frames=first, num_keyframes=len(drive.windows))
+    bar.update(first)
+    return done["between"], first
+
+
+def _close_window(
+    cfg: RunConfig,
+    parts: RunSetup,
+    drive: LoopOutcome,
+    out: Path,
+    record: RunRecord,
+    between: dict[str, Any],
+    keyframe: int,
+) -> None:
+    """After keyframe ``keyframe``'s row: its map snapshot (``save_maps=every_keyframe``), a checkpoint every
+    ``checkpoint.every`` keyframes, the record saved, and the next memory window opened."""
+    if cfg.save_maps == "every_keyframe":
+        save_snapshot(out, keyframe, parts.system.map)
+    record["metrics"]["num_keyframes"] = len(drive.windows)
+    every = cfg.checkpoint.every
+    if every and (keyframe + 1) % every == 0:
+        write_checkpoint(cfg, parts, drive, out, record, between)
+    record.save()  # still running; counts so far, for a later reader
+    parts.probe.start_window()
 
 
 def write_checkpoint(
