@@ -215,3 +215,15 @@ def test_one_module_path_per_command():
     twice = {t: sorted(m) for t, m in runs.items() if len(m) > 1}
     assert "bench.run.export.main" in runs, "the checker sees bench.export's command"
     assert twice == {}, f"commands with two module paths: {twice}"
+
+
+def test_the_docs_name_the_same_layers():
+    """docs/architecture.md's table of layers lists, row by row, the packages and modules of ``LAYERS``."""
+    page = (REPO / "docs" / "architecture.md").read_text()
+    section = page.split("## Layers", 1)[1].split("\n## ", 1)[0]
+    rows = [line for line in section.splitlines() if line.startswith("| ") and line.split("|")[1].strip().isdigit()]
+    assert len(rows) == len(LAYERS), f"docs/architecture.md lists {len(rows)} layers, LAYERS {len(LAYERS)}"
+    for row, (layer, prefixes) in zip(rows, LAYERS, strict=True):
+        for prefix in prefixes:
+            if prefix != "bench":  # the package itself
+                assert prefix.rpartition(".")[2] in row, f"layer '{layer}': {prefix} is not in its docs row: {row}"
