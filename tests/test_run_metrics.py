@@ -78,3 +78,15 @@ def test_peaks_count_the_frames_after_the_last_keyframe(tmp_path, monkeypatch):
     assert max(float(r["torch_live_peak_mib"]) for r in rows) < big_mib
     assert m["peak_mem_mib"] >= big_mib
     assert m["gaussians_peak"] >= m["gaussians_final"]
+
+
+def test_fps_slam_counts_tracking_mapping_and_pruning_only():
+    """fps_slam is frames / (tracking + mapping + pruning + residency s), the released code's FPS: frame loading,
+    refinement and evaluation are not in it, and no SLAM phase gives None."""
+    from bench.run.evaluation import fps_slam
+
+    phases = {"tracking": 2.0, "mapping": 5.0, "pruning": 1.0, "refine": 100.0, "densification": 50.0}
+    assert fps_slam(phases, 16) == 2.0
+    assert fps_slam({"refine": 3.0}, 10) is None
+    assert fps_slam({"tracking": 1.0, "residency": 1.0}, 0) is None
+    assert fps_slam({"tracking": 1.0, "residency": 1.0}, 3) == 1.5

@@ -31,7 +31,7 @@ DEFAULT_PROTOCOL = "full"  # runs written before eval.protocol existed were scor
 # numbers); any other metric a run wrote is kept and appended.
 METRIC_KEYS: tuple[str, ...] = (
     "ate_rmse_m", "ate_alignment", "ate_num_poses", "psnr_db", "ssim", "ms_ssim", "lpips", "eval_frames",
-    "fps", "slam_wall_s", "refine_s", "num_frames", "num_keyframes", "gaussians_final", "gaussians_peak",
+    "fps", "fps_slam", "slam_wall_s", "refine_s", "num_frames", "num_keyframes", "gaussians_final", "gaussians_peak",
     "gaussians_added_total", "gaussians_pruned_total", "prune_candidates_total",
     "state_peak_mib", "cpu_rss_peak_mib", "torch_live_peak_mib", "cuda_alloc_peak_mib",
     "cuda_reserved_peak_mib", schema.PEAK_FIELD,

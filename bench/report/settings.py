@@ -18,7 +18,8 @@ CONFIG_FILE = "config.yaml"  # written by bench.run.lifecycle next to metrics.js
 # Config keys that decide a comparison, in the order the settings table shows them. The column
 # name in runs.csv is the dotted key itself, so a reader can paste it back as an override.
 SETTING_KEYS: tuple[str, ...] = (
-    "slam.raster_backend", "slam.raster_antialias", "slam.isotropic", "slam.tracking_iters", "slam.mapping_iters",
+    "slam.raster_backend", "slam.gsplat_stats", "slam.raster_antialias", "slam.isotropic", "slam.tracking_iters",
+    "slam.mapping_iters",
     "slam.mapping_fit_psnr_db", "slam.mapping_schedule", "slam.mapping_draw", "slam.kf_every", "slam.refine_iters",
     "slam.refine_lr_final", "slam.densify_silhouette", "slam.densify_stride", "slam.init_opacity",
     "prune.target", "prune.n_target", "prune.n_target_per_mpx", "prune.every", "prune.grad_source",

@@ -49,6 +49,9 @@ class EvalConfig:
     # numbers of every run before protocols); splatam = SplaTAM's valid-depth mask within the dataset's
     # eval_depth_near_m/eval_depth_far_m; released = the released Pocket-SLAM code's rendered silhouette > 0.5
     protocol: str = setting("full", "str", choices=PROTOCOLS)
+    # where the image metrics are computed (float64 either way): run = the run's device (a CUDA run scores on
+    # its GPU), cpu = the host (the only choice before it existed; on a CPU run the two are the same)
+    device: str = setting("run", "str", choices=("run", "cpu"))
     ate_align: str = setting("se3", "str", choices=ALIGNMENTS)
     # estimate <-> ground-truth timestamp association for ATE/RPE
     max_diff_s: float = setting(0.01, "float", lo=0.0, lo_open=True)

@@ -37,7 +37,7 @@ MODES: tuple[str, ...] = ("strict", "fast")
 # What a repeat may change even when deterministic: wall-clock times and process memory peaks.
 # Everything else in metrics.json's "metrics" block and keyframes.csv must repeat exactly.
 VOLATILE_METRICS: frozenset[str] = frozenset({
-    "slam_wall_s", "warmup_s", "refine_s", "eval_s", "wall_s", "fps", "phase_s", "cpu_rss_peak_mib",
+    "slam_wall_s", "warmup_s", "refine_s", "eval_s", "wall_s", "fps", "fps_slam", "phase_s", "cpu_rss_peak_mib",
     "torch_live_peak_mib", "cuda_alloc_peak_mib", "cuda_reserved_peak_mib", "peak_mem_mib",
     "gaussian_share_of_peak",  # from the peak and its work buffers
 })  # fmt: skip

@@ -53,6 +53,7 @@ def finish(
         system.restore_all()
     warmup = cfg.warmup_frames
     metrics["fps"] = round((n_done - warmup) / drive.loop_s, 4) if drive.loop_s > 0 and n_done > warmup else None
+    metrics["fps_slam"] = fps_slam(timer.totals(), n_done)
     # per-phase seconds of the frame loop, warm-up frames included: they sum to about
     # slam_wall_s + warmup_s (less the frame handling outside the phases); refinement is refine_s
     metrics["phase_s"] = {k: round(v, 3) for k, v in timer.totals().items() if k != "refine"}
@@ -89,6 +90,18 @@ def finish(
     if parts.viz is not None:
         parts.viz.draw_all()
     return metrics
+
+
+SLAM_PHASES = ("tracking", "mapping", "pruning", "residency")  # what fps_slam counts
+
+
+def fps_slam(phase_s: dict[str, float], n_frames: int) -> float | None:
+    """Frames per second of tracking and mapping alone, as the paper's released code counts FPS:
+    1 / (tracking + mapping seconds per frame). Pruning and residency checks count as mapping (they run in
+    the keyframe's mapping step); frame loading, stereo depth and the loop's own bookkeeping do not. Warm-up
+    frames count (their phases are in ``phase_s``). None when no SLAM phase ran."""
+    slam_s = sum(phase_s.get(k, 0.0) for k in SLAM_PHASES)
+    return round(n_frames / slam_s, 4) if slam_s > 0 and n_frames > 0 else None
 
 
 def tracked_c2w(system: Any, n_done: int) -> list[torch.Tensor]:
@@ -225,7 +238,8 @@ def image_metrics(cfg: RunConfig, parts: RunSetup, est_c2w: list[torch.Tensor], 
     idx = list(range(0, len(est_c2w), max(1, ev.every)))
     near_m, far_m = eval_depth_range(cfg.dataset)
     lp = parts.lpips or (LPIPS.from_weights(ev.lpips_weights) if ev.lpips else None)
-    lp = lp.to(device) if lp is not None else None
+    on = device if ev.device == "run" else torch.device("cpu")  # eval.device: where the metrics are computed
+    lp = lp.to(on) if lp is not None else None
     frames = []
     with Phase("evaluate", len(idx), "frame", cfg.progress) as bar:
         with torch.no_grad():
@@ -233,8 +247,9 @@ def image_metrics(cfg: RunConfig, parts: RunSetup, est_c2w: list[torch.Tensor], 
                 w2c = inverse(est_c2w[i]).float().to(device)
                 render = parts.system.render(w2c)
                 frame = parts.seq[i]
-                mask = protocol_mask(ev.protocol, frame.depth_m, render.alpha.cpu(), near_m, far_m)  # [H, W] or None
-                frames.append(frame_metrics(ev.protocol, render.color.clamp(0, 1).cpu(), frame.rgb, mask, lp))
+                depth_m = None if frame.depth_m is None else frame.depth_m.to(on)
+                mask = protocol_mask(ev.protocol, depth_m, render.alpha.to(on), near_m, far_m)  # [H, W] or None
+                frames.append(frame_metrics(ev.protocol, render.color.clamp(0, 1).to(on), frame.rgb.to(on), mask, lp))
                 bar.update(1)
     img = mean_metrics(frames)
     img.pop("num_frames", None)  # that count is res["eval_frames"]; metrics["num_frames"] is frames tracked

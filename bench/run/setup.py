@@ -61,7 +61,7 @@ def build(
     n_frames = min(len(seq), cfg.max_frames) if cfg.max_frames else len(seq)
     if n_frames < 2:
         raise ConfigError(f"a run needs at least 2 frames: expected >= 2, found {n_frames}")
-    warm_kernels(cfg.slam.raster_backend, device)  # before the memory probe: its buffers are not the run's
+    warm_kernels(cfg.slam.raster_backend, device, cfg.slam.gsplat_stats)  # before the memory probe: not the run's
     timer = PhaseTimer(device)
     probe = MemoryProbe(device, torch_live=cfg.memory.torch_live)  # before the SLAM state is allocated
     store = out / STORE_DIR if out is not None else None
@@ -74,7 +74,7 @@ def build(
 _warm: set[str] = set()  # rasterizer backends whose kernels this process has loaded
 
 
-def warm_kernels(backend: str, device: torch.device) -> None:
+def warm_kernels(backend: str, device: torch.device, gsplat_stats: str = "auto") -> None:
     """Load every compiled rasterizer kernel into this process before the timed frame loop.
 
     Why: numba loads a cached kernel at its first call, and a run calls some kernels first only
@@ -91,6 +91,14 @@ def warm_kernels(backend: str, device: torch.device) -> None:
 
         compile_kernels()  # loads each kernel from numba's cache (compiling it there first if absent)
         _warm.add(name)
+    if name == "gsplat" and "gsplat_stats" not in _warm:
+        from bench.slam.raster_gsplat import stats_impl
+
+        if stats_impl(gsplat_stats) == "triton":  # Triton compiles its kernel at the first call (seconds)
+            from bench.slam.gsplat_stats import warm
+
+            warm(device)
+            _warm.add("gsplat_stats")
 
 
 def restore(parts: RunSetup, start: dict[str, Any]) -> None:

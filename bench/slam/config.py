@@ -40,6 +40,10 @@ class DensifyConfig:
     # the cap as a rule fixed before the runs, not read off them: after keyframe k (0-based) the map holds at most
     # cap_per_mpix_kf x the image's megapixels x (k + 1) Gaussians (the lower of the two where cap is set too)
     cap_per_mpix_kf: float | None = setting(None, "float", lo=0.0, lo_open=True, nullable=True)
+    # the rule's floor: its cap is never below this many Gaussians per pixel of one image. Why: the rule alone
+    # allows fewer Gaussians after the first keyframes than one view needs, and tracking is lost at once
+    # (conf/study/memory_rule.yaml); 1.0 = one view seeded at every pixel
+    cap_floor_per_px: float | None = setting(None, "float", lo=0.0, lo_open=True, nullable=True)
     # at the cap, a strategy without a score (none, and every strategy whose score hook returns None):
     # "drop" = no Gaussian is removed, the seeds beyond the cap are not added; "opacity" = rank by opacity
     unscored: str = setting("drop", "str", choices=CAP_UNSCORED)
@@ -113,6 +117,11 @@ class SlamConfig:
     # blob at full opacity, in farther views (bench/slam/raster.py:antialias_compensation). Off = the
     # paper's base system (SplaTAM's rasterizer has only the low-pass).
     raster_antialias: bool = False
+    # how the gsplat backend computes the per-Gaussian statistics (coverage, hit count, max weight) the pruning
+    # criteria read: torch = bench/slam/raster_gsplat.py:pair_stats, chunks of whole tiles (many small kernels a
+    # frame, reports/gpu); triton = bench/slam/gsplat_stats.py, one kernel; auto = triton where
+    # it is importable. The same figures to float rounding (tests/slam/test_raster_gsplat.py); CPU backends ignore it
+    gsplat_stats: str = setting("auto", "str", choices=("auto", "torch", "triton"))
     # one scale per Gaussian, as SplaTAM's (gaussian_distribution="isotropic"), the paper's base system;
     # False = 3DGS's anisotropic ellipsoids. Rendered with the mean of the three log-scales, which get
     # equal gradients and so stay equal (the map file keeps three columns either way). Why: a needle

@@ -15,12 +15,15 @@ from bench.slam.config import DensifyConfig
 
 def map_cap(dcfg: DensifyConfig, kf_idx: int, n_pixels: int) -> int | None:
     """The most Gaussians the map may hold after keyframe ``kf_idx``'s seeds (0-based): ``slam.densify.cap``,
-    the rule ``cap_per_mpix_kf`` x megapixels x (``kf_idx`` + 1) for an image of ``n_pixels``, or the lower of
-    the two; None when neither is set. The rule fixes the cap before the runs from the image size and the keyframes
-    so far, where a fixed ``cap`` is a count someone chose (reports/memory/README.md, "The caps")."""
+    the rule ``cap_per_mpix_kf`` x megapixels x (``kf_idx`` + 1) for an image of ``n_pixels`` (never below
+    ``cap_floor_per_px`` x ``n_pixels`` where that is set), or the lower of the two; None when neither is set.
+    The rule fixes the cap before the runs from the image size and the keyframes so far, where a fixed ``cap`` is a
+    count someone chose (reports/memory/README.md, "The caps")."""
     caps = [] if dcfg.cap is None else [dcfg.cap]
     if dcfg.cap_per_mpix_kf is not None:
-        caps.append(max(1, int(dcfg.cap_per_mpix_kf * n_pixels / 1e6 * (kf_idx + 1))))
+        rule = int(dcfg.cap_per_mpix_kf * n_pixels / 1e6 * (kf_idx + 1))
+        floor = 0 if dcfg.cap_floor_per_px is None else int(dcfg.cap_floor_per_px * n_pixels)
+        caps.append(max(1, rule, floor))
     return min(caps) if caps else None
 
 

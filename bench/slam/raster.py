@@ -286,6 +286,7 @@ def rasterize(
     backend: str = "auto",
     extra: frozenset[str] | tuple[str, ...] = (),
     antialiased: bool = False,
+    gsplat_stats: str = "auto",
 ) -> RasterOutput:
     """Render Gaussians (world frame) through camera ``w2c`` [4, 4] with intrinsics ``K`` [3, 3].
 
@@ -304,6 +305,9 @@ def rasterize(
 
     ``antialiased``: scale each opacity by ``antialias_compensation`` of its screen covariance, on
     every backend (``slam.raster_antialias``). The statistics then see the scaled opacities.
+
+    ``gsplat_stats``: how the ``gsplat`` backend computes the statistics (``slam.gsplat_stats``: ``torch``,
+    ``triton`` or ``auto``); the other backends ignore it.
     """
     extra = check_extra(extra)
     backend = resolve_backend(backend, means.device)
@@ -334,6 +338,7 @@ def rasterize(
                 near_m,
                 stats,
                 antialiased,
+                gsplat_stats,
             )
         )
     if backend == "fused":

@@ -39,6 +39,8 @@ import math
 
 import torch
 
+from bench.errors import ConfigError
+
 TILE_PX = 16  # gsplat's tile_size here: the reference's tile, so tile ids and tiles_xy mean the same
 ALPHA_MIN = 1.0 / 255.0  # gsplat's ALPHA_THRESHOLD (Common.h)
 GSPLAT_ALPHA_MAX = 0.999  # gsplat's clamp (RasterizeToPixels3DGSFwd.cu)
@@ -64,8 +66,45 @@ def unavailable_reason() -> str | None:
     return None
 
 
+@functools.lru_cache(maxsize=8)
+def _half_pixel(device: torch.device, dtype: torch.dtype) -> torch.Tensor:
+    """[3, 3] adds half a pixel to a K's principal point: built once per device, not per call (each element set on a
+    CUDA tensor from Python is a copy from the host, which waits for the GPU)."""
+    half = torch.zeros(3, 3, dtype=dtype)
+    half[0, 2] = half[1, 2] = 0.5
+    return half.to(device)
+
+
+def stats_impl(choice: str, device: torch.device | None = None) -> str:
+    """``slam.gsplat_stats`` resolved for tensors on ``device``: ``torch`` or ``triton`` (``auto``: triton where it
+    can run; tensors on the CPU, as the tests' stand-in for gsplat passes them, always take the torch chunks)."""
+    from bench.slam.gsplat_stats import unavailable_reason
+
+    if choice == "torch" or (device is not None and device.type != "cuda"):
+        return "torch"
+    reason = unavailable_reason()
+    if choice == "triton" and reason is not None:
+        raise ConfigError(f"slam.gsplat_stats=triton: {reason} (use slam.gsplat_stats=torch or auto)")
+    return "triton" if reason is None else "torch"
+
+
 def rasterize_gsplat(
-    means, log_scales, quats, opacities, colors, z, z_paint, w2c, K, width, height, bg, near_m, stats, antialiased=False
+    means,
+    log_scales,
+    quats,
+    opacities,
+    colors,
+    z,
+    z_paint,
+    w2c,
+    K,
+    width,
+    height,
+    bg,
+    near_m,
+    stats,
+    antialiased=False,
+    gsplat_stats="auto",
 ) -> dict:
     """Render with gsplat (CUDA tensors): the fields of ``RasterOutput``, as a dict.
 
@@ -78,8 +117,7 @@ def rasterize_gsplat(
     device, dtype = means.device, means.dtype
     tiles_x = (width + TILE_PX - 1) // TILE_PX
     tiles_y = (height + TILE_PX - 1) // TILE_PX
-    half = torch.zeros(3, 3, device=device, dtype=K.dtype)
-    half[0, 2] = half[1, 2] = 0.5
+    half = _half_pixel(device, K.dtype)
     _, _, gids, radii, m2_g, depth_g, conics, comps = fully_fused_projection(
         means,
         None,
@@ -167,7 +205,10 @@ def rasterize_gsplat(
     if stats:
         with torch.no_grad():
             per_tile = torch.diff(offsets.reshape(-1).long(), append=offsets.new_full((1,), flatten_ids.numel()).long())
-            cov_v, hits_v, maxw_v = pair_stats(
+            from bench.slam.gsplat_stats import pair_stats_triton
+
+            impl = pair_stats_triton if stats_impl(gsplat_stats, device) == "triton" else pair_stats
+            cov_v, hits_v, maxw_v = impl(
                 means2d[gid].detach(),
                 conics.detach(),
                 op_v.detach(),

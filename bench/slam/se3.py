@@ -70,7 +70,7 @@ def se3_exp(xi: torch.Tensor) -> torch.Tensor:
     t = (V @ v[..., None])[..., 0]
     top = torch.cat([R, t[..., None]], -1)
     bottom = torch.zeros(*xi.shape[:-1], 1, 4, dtype=xi.dtype, device=xi.device)
-    bottom[..., 0, 3] = 1
+    bottom[..., 0, 3].fill_(1.0)  # fill_, not `= 1`: setting a CUDA element from Python copies from the host
     return torch.cat([top, bottom], -2)
 
 
@@ -81,7 +81,7 @@ def inverse(T: torch.Tensor) -> torch.Tensor:
     out = torch.zeros_like(T)
     out[..., :3, :3] = Rt
     out[..., :3, 3:] = -Rt @ t
-    out[..., 3, 3] = 1
+    out[..., 3, 3].fill_(1.0)
     return out
 
 

@@ -195,6 +195,7 @@ class System(Tracking, Mapping, PruneDiagnostics):
             backend=self.cfg.raster_backend,
             extra=extra,
             antialiased=self.cfg.raster_antialias,
+            gsplat_stats=self.cfg.gsplat_stats,
         )
 
     def _phase(self, name: str):

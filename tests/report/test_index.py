@@ -63,7 +63,7 @@ def test_a_readme_without_an_answer_fails_the_index(tmp_path):
 
 @NEEDS_HISTORY
 def test_an_entry_reads_the_folder(tmp_path, monkeypatch):
-    root = _copy(tmp_path, "noise", "gpu")
+    root = _copy(tmp_path, "noise", "gpu", "criteria")
     monkeypatch.chdir(tmp_path)
     assert report(["--index"]) == 0
     text = (root / "README.md").read_text()
@@ -71,5 +71,6 @@ def test_an_entry_reads_the_folder(tmp_path, monkeypatch):
     assert "- **Runs.** 6 in `runs.csv`, at dd5bd5f (" in text
     assert "- **Provenance.** made from runs with uncommitted changes: 2 of 6." in text
     assert "- **Answer.** On ATE and PSNR yes (p = 0.017 and 0.003)," in text  # claims taken out
-    assert "- **Recorded.** 2026-11-27 at d3f4b93" in text  # gpu/: a hand-written record
+    assert "- **Runs.** 4 in `runs.csv`, at abd6fac (" in text  # gpu/: a check's runs, brought back from the GPU
+    assert "- **Recorded.** 2026-11-26 at fe65fab (no committed runs" in text  # criteria/: a script's record
     assert "- **Study.** `conf/study/noise.yaml`" not in text  # no conf/study beside this copy

@@ -91,6 +91,14 @@ def test_the_rule_and_a_fixed_cap_take_the_lower():
     assert map_cap(rule, 0, 100) == 1  # never a cap of 0
 
 
+def test_the_rules_floor_holds_one_view_until_the_rule_passes_it():
+    """slam.densify.cap_floor_per_px: the rule's cap is never below that many Gaussians per pixel of one image."""
+    floored = DensifyConfig(cap_per_mpix_kf=2000.0, cap_floor_per_px=0.005)  # a floor of 5,000 at 1 MP
+    assert [map_cap(floored, k, 10**6) for k in (0, 1, 2, 3)] == [5000, 5000, 6000, 8000]
+    assert map_cap(DensifyConfig(cap=3000, cap_per_mpix_kf=2000.0, cap_floor_per_px=0.005), 0, 10**6) == 3000
+    assert map_cap(DensifyConfig(cap_floor_per_px=1.0), 0, 10**6) is None  # a floor alone is no cap
+
+
 def test_at_the_cap_the_lowest_scored_are_removed():
     g = GaussianMap(torch.device("cpu"))
     n = 6

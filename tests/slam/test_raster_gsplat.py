@@ -13,6 +13,7 @@ float32 rounding in another order (gsplat compiles with fast math).
 from __future__ import annotations
 
 import importlib.util
+import os
 import sys
 from pathlib import Path
 
@@ -27,6 +28,7 @@ ROOT = Path(__file__).resolve().parents[2]
 POSE = torch.tensor([0.01, -0.02, 0.03, 0.01, -0.01, 0.02])
 CUDA_POINTS = [(2000, 96, 64), (20000, 320, 192), (50000, 640, 384)]  # raster_bench's range, small to large
 CPU_POINTS = [(2000, 96, 64), (5000, 160, 96)]
+STANDIN_CASE = ("aniso", 2000, 96, 64, False)  # kind, n, W, H, antialiased: one stand-in case
 
 # image: max |diff| and mean |diff|; depth in m
 IMAGE_TOL = {"color": (1e-2, 1e-4), "alpha": (1e-2, 1e-4), "depth": (0.1, 1e-3)}
@@ -179,3 +181,71 @@ def test_criteria_statistics_on_gsplat_are_one_config_error(monkeypatch):
             8,
             extra=("weight_sum", "top1"),
         )
+
+
+def _stats_scene(device: str, seed: int = 0):
+    """Screen means, conics and opacities of a random 45x37 px scene with 0-40 pairs a tile, some tiles deep in
+    near-opaque Gaussians so the transmittance stop is reached (gsplat's packed layout: pairs grouped by tile)."""
+    g = torch.Generator().manual_seed(seed)
+    W, H, M = 45, 37, 80
+    tiles_x, tiles_y = (W + 15) // 16, (H + 15) // 16
+    means = torch.rand(M, 2, generator=g) * torch.tensor([W, H])
+    L = torch.randn(M, 2, 2, generator=g) * 0.6
+    inv = torch.linalg.inv(L @ L.transpose(1, 2) + 0.5 * torch.eye(2))
+    conic = torch.stack([inv[:, 0, 0], inv[:, 0, 1], inv[:, 1, 1]], -1)
+    opacity = torch.where(torch.rand(M, generator=g) < 0.5, 0.995, torch.rand(M, generator=g))
+    per_tile = torch.randint(0, 41, (tiles_x * tiles_y,), generator=g)
+    gid = torch.cat([torch.randperm(M, generator=g)[:k] for k in per_tile.tolist()])
+    args = [t.to(device) for t in (means, conic, opacity, gid, per_tile)]
+    return args, tiles_x, W, H
+
+
+@pytest.mark.parametrize("strict", [True, False])
+def test_triton_statistics_agree_with_the_torch_chunks(strict):
+    """slam.gsplat_stats=triton against pair_stats (the torch chunks), on CUDA; without one, under Triton's
+    interpreter where triton is installed (it is not a dependency: skipped elsewhere)."""
+    pytest.importorskip("triton")
+    from bench.slam import gsplat_stats
+    from bench.slam.raster_gsplat import GSPLAT_ALPHA_MAX, pair_stats
+
+    device = "cuda" if torch.cuda.is_available() else "cpu"
+    if device == "cpu" and os.environ.get("TRITON_INTERPRET") != "1":
+        pytest.skip("no CUDA device: run with TRITON_INTERPRET=1 (Triton's interpreter) to test the kernel on the CPU")
+    for seed in range(3):
+        args, tiles_x, W, H = _stats_scene(device, seed)
+        want = pair_stats(*args, tiles_x, W, H, GSPLAT_ALPHA_MAX, strict_stop=strict)
+        got = gsplat_stats.pair_stats_triton(*args, tiles_x, W, H, GSPLAT_ALPHA_MAX, strict_stop=strict)
+        cov, hits, maxw = (t.cpu() for t in got)
+        assert torch.equal(hits, want[1].cpu())
+        assert torch.allclose(cov, want[0].cpu(), rtol=1e-5, atol=1e-6)
+        assert torch.allclose(maxw, want[2].cpu(), rtol=1e-5, atol=1e-6)
+        assert int(want[1].sum()) > 0 and float(want[2].max()) > 0.5  # the scene composites something
+
+
+def test_triton_statistics_unavailable_is_one_config_error(monkeypatch):
+    """slam.gsplat_stats=triton where it cannot run: one ConfigError line; auto falls back to torch."""
+    from bench.slam import gsplat_stats
+    from bench.slam.raster_gsplat import stats_impl
+
+    monkeypatch.setattr(gsplat_stats, "unavailable_reason", lambda: "no CUDA device")
+    with pytest.raises(ConfigError, match="slam.gsplat_stats=triton: no CUDA device"):
+        stats_impl("triton")
+    assert stats_impl("auto") == "torch" and stats_impl("torch") == "torch"
+    # where Triton can run, CPU tensors (the stand-in tests' gsplat on the CPU) still take the torch chunks
+    monkeypatch.setattr(gsplat_stats, "unavailable_reason", lambda: None)
+    assert stats_impl("auto", torch.device("cpu")) == "torch" and stats_impl("triton", torch.device("cpu")) == "torch"
+    assert stats_impl("auto", torch.device("cuda")) == "triton"
+
+
+def test_standin_statistics_take_the_torch_chunks_where_triton_runs(monkeypatch):
+    """The stand-in tests pass CPU tensors through the gsplat backend; on a machine with CUDA and Triton (the GPU
+    check's) `auto` must not hand them to the Triton kernel (the first H200 check failed 8 tests so)."""
+    from bench.slam import gsplat_stats
+
+    monkeypatch.setattr(gsplat_stats, "unavailable_reason", lambda: None)
+
+    def refuse(*a, **k):
+        raise AssertionError("the Triton kernel got CPU tensors")
+
+    monkeypatch.setattr(gsplat_stats, "pair_stats_triton", refuse)
+    test_backend_code_over_the_standin_agrees_with_reference(monkeypatch, *STANDIN_CASE)
