@@ -50,3 +50,10 @@ class ArgumentParser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         print(f"error: {message} (usage: {self.prog} --help)", file=sys.stderr)
         sys.exit(2)
+
+
+def failed(exc: BaseException, exit_code: int = 2) -> int:
+    """A known failure at the command line: its one ``error:`` line on stderr; returns the exit status
+    (2, as argparse's usage errors) for the command's ``main`` to return."""
+    print(f"error: {exc}", file=sys.stderr)
+    return exit_code

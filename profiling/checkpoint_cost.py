@@ -23,10 +23,11 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench import schema  # noqa: E402
-from bench.config.compose import RunConfig  # noqa: E402
 from bench.measure.memory import MemoryProbe
 from bench.measure.timing import PhaseTimer  # noqa: E402
-from bench.run.loop import LoopOutcome, write_checkpoint  # noqa: E402
+from bench.run.config import RunConfig  # noqa: E402
+from bench.run.loop import write_checkpoint  # noqa: E402
+from bench.run.outcome import LoopOutcome  # noqa: E402
 from bench.run.setup import RunSetup  # noqa: E402
 from bench.slam.config import SlamConfig  # noqa: E402
 from bench.slam.strategy import CheckedStrategy, load_strategy  # noqa: E402

@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import importlib.util
+import re
 import statistics
 import subprocess
 import sys
@@ -47,6 +48,20 @@ from bench.slam.raster_fused import autograd as fused_autograd  # noqa: E402
 from bench.slam.raster_fused import compositing as today  # noqa: E402
 
 KERNELS = "bench/slam/raster_fused/compositing.py"
+# names the kernels had before they were made public (issue 61): an older revision's file is read with today's
+RENAMED = {
+    "_forward": "composite_fwd",
+    "_backward": "composite_bwd",
+    "_pack": "pack",
+    "_schedule": "tile_schedule",
+    "_reduce_sum": "reduce_sum",
+    "_reduce_stats": "reduce_stats",
+    "_KERNEL": "KERNEL_OPTIONS",
+    "_box": "pixel_box",
+    "_exp": "exp_f32",
+    "_tile_pixels": "tile_pixels",
+    "_F": "F32",
+}
 
 
 def old_compositing(rev: str) -> ModuleType:
@@ -54,11 +69,12 @@ def old_compositing(rev: str) -> ModuleType:
     shown = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:{KERNELS}"], capture_output=True, text=True)
     if shown.returncode != 0:
         sys.exit(f"--old {rev}: expected {KERNELS} at {rev}, found none ({shown.stderr.strip()})")
+    source = re.sub(r"\b(" + "|".join(RENAMED) + r")\b", lambda m: RENAMED[m.group(1)], shown.stdout)
     folder = Path.home() / ".cache" / "pocketbench" / "old_kernels"
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"compositing_{hashlib.sha256(shown.stdout.encode()).hexdigest()[:12]}.py"
+    path = folder / f"compositing_{hashlib.sha256(source.encode()).hexdigest()[:12]}.py"
     if not path.exists():
-        path.write_text(shown.stdout)
+        path.write_text(source)
     spec = importlib.util.spec_from_file_location(path.stem, path)
     assert spec is not None and spec.loader is not None
     mod = importlib.util.module_from_spec(spec)
@@ -71,7 +87,7 @@ def kernel_inputs(n: int, w: int, h: int, kind: str) -> tuple[list, list]:
     """The arguments one forward+backward of ``raster_bench``'s scene passes the two kernels, for one thread."""
     params, K = scene(n, w, h, torch.device("cpu"), kind=kind)
     seen: dict[str, tuple] = {}
-    fwd, bwd = fused_autograd._forward, fused_autograd._backward
+    fwd, bwd = fused_autograd.composite_fwd, fused_autograd.composite_bwd
 
     def keep(name, kernel):
         def call(*a):
@@ -80,14 +96,14 @@ def kernel_inputs(n: int, w: int, h: int, kind: str) -> tuple[list, list]:
 
         return call
 
-    fused_autograd._forward, fused_autograd._backward = keep("f", fwd), keep("b", bwd)  # type: ignore[assignment]
+    fused_autograd.composite_fwd, fused_autograd.composite_bwd = keep("f", fwd), keep("b", bwd)  # type: ignore[assignment]
     try:
         out = rasterize(*params, torch.eye(4), K, w, h, backend="fused")
         (out.color.sum() + out.depth.sum()).backward()
     finally:
-        fused_autograd._forward, fused_autograd._backward = fwd, bwd
+        fused_autograd.composite_fwd, fused_autograd.composite_bwd = fwd, bwd
     f_args, b_args = list(seen["f"]), list(seen["b"])
-    order, bounds = today._schedule(f_args[1], 1)  # one thread: every tile in one list
+    order, bounds = today.tile_schedule(f_args[1], 1)  # one thread: every tile in one list
     f_args[7:9] = [order, bounds]
     b_args[6:8] = [order, bounds]
     return f_args, b_args
@@ -95,13 +111,13 @@ def kernel_inputs(n: int, w: int, h: int, kind: str) -> tuple[list, list]:
 
 def run_forward(mod: ModuleType, f_args: list) -> list[np.ndarray]:
     outs = [np.empty_like(x) for x in f_args[9:]]  # acc, t_final, last, and the per-pair statistics
-    mod._forward(*f_args[:9], *outs)
+    mod.composite_fwd(*f_args[:9], *outs)
     return outs
 
 
 def run_backward(mod: ModuleType, b_args: list) -> np.ndarray:
     pair_grad = np.empty_like(b_args[12])  # [P, 10]
-    mod._backward(*b_args[:12], pair_grad)
+    mod.composite_bwd(*b_args[:12], pair_grad)
     return pair_grad
 
 

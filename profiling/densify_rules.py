@@ -18,7 +18,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.cli.entry import compose  # noqa: E402
-from bench.config.compose import to_run_config  # noqa: E402
+from bench.run.config import to_run_config  # noqa: E402
 from bench.run.determinism import repeatable  # noqa: E402
 from bench.run.setup import open_seq  # noqa: E402
 from bench.slam.strategy import load_strategy  # noqa: E402

@@ -120,9 +120,9 @@ def main() -> None:
     args = ap.parse_args()
 
     from bench.cli.entry import compose
-    from bench.cli.validate import validate
     from bench.run.determinism import repeatable
     from bench.run.setup import open_seq
+    from bench.run.validate import validate
     from bench.slam.system import System
 
     overrides = [*shlex.split(args.defaults), *shlex.split(args.overrides)]

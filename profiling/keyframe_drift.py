@@ -24,10 +24,10 @@ sys.path.insert(0, str(ROOT))  # measure the checkout this file sits in
 
 def main() -> None:
     from bench.cli.entry import compose
-    from bench.cli.validate import validate
     from bench.metrics.image import region_psnr_db
     from bench.run.determinism import repeatable
     from bench.run.setup import open_seq
+    from bench.run.validate import validate
     from bench.slam.raster import drawn_log_scales, rasterize
     from bench.slam.se3 import inverse
     from bench.slam.system import System

@@ -56,7 +56,7 @@ def main() -> None:
     ap.add_argument("--gap", type=int, default=150, help="frames (default 150: 5 s at 30 Hz)")
     args = ap.parse_args()
 
-    from bench.config.compose import compose, to_run_config
+    from bench.run.config import compose, to_run_config
     from bench.run.setup import open_seq
 
     seq = open_seq(to_run_config(compose(list(args.overrides))))

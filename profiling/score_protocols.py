@@ -33,12 +33,12 @@ PROTOCOLS = ("full", "splatam", "released")
 
 def score_run(run_dir: Path, protocols: tuple[str, ...] = PROTOCOLS, per_frame: list[dict] | None = None) -> list[dict]:
     """The run's mean figures, one row per protocol; each frame's figures appended to ``per_frame``."""
-    from bench.cli.validate import validate
     from bench.metrics.protocol import frame_metrics, mean_metrics, protocol_mask
     from bench.metrics.trajectory import read_tum
     from bench.run.evaluation import eval_depth_range
     from bench.run.export import MAP_FILE, read_ply
     from bench.run.setup import open_seq
+    from bench.run.validate import validate
     from bench.slam.raster import drawn_log_scales, rasterize
 
     built = validate(OmegaConf.load(run_dir / "config.yaml"))

@@ -406,8 +406,8 @@ def test_bad_data_file_fails_before_any_work(name: str, tmp_path: Path, request:
     ],
 )
 def test_one_sequence_one_name(dataset: str, given: str, canonical: str) -> None:
-    from bench.config.identity import run_keys
     from bench.datasets import canonical_seq
+    from bench.run.identity import run_keys
 
     assert canonical_seq(dataset, given) == canonical
     assert run_keys(cli.compose([f"dataset={dataset}", f"seq={given}"]))["seq"] == canonical

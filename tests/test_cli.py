@@ -56,8 +56,8 @@ def test_final_refinement_is_specialised_per_dataset(overrides, refine_iters, tr
 
 @pytest.mark.parametrize("seq", ["00", "05", "10"])
 def test_seq_is_kept_as_written(seq):
-    from bench.config.compose import to_run_config
-    from bench.config.identity import run_keys
+    from bench.run.config import to_run_config
+    from bench.run.identity import run_keys
 
     cfg = to_run_config(compose_cfg("dataset=kitti", f"seq={seq}"))
     assert run_keys(cfg)["seq"].zfill(2) == seq
@@ -180,12 +180,12 @@ def test_a_single_run_is_validated_and_built_once(tmp_path, monkeypatch):
     import contextlib
     import io
 
-    import bench.cli.validate
+    import bench.run.validate
     from bench.cli import entry as cli
 
     conversions = []
-    convert = bench.cli.validate.to_run_config
-    monkeypatch.setattr(bench.cli.validate, "to_run_config", lambda cfg: conversions.append(1) or convert(cfg))
+    convert = bench.run.validate.to_run_config
+    monkeypatch.setattr(bench.run.validate, "to_run_config", lambda cfg: conversions.append(1) or convert(cfg))
     monkeypatch.setattr(
         sys,
         "argv",

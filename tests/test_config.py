@@ -10,10 +10,10 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from bench.cli.entry import CONF_DIR
-from bench.config.compose import RunConfig, dataset_schemas, to_run_config
 from bench.config.settings import as_config
 from bench.datasets.kitti import KittiConfig
 from bench.errors import ConfigError
+from bench.run.config import RunConfig, dataset_schemas, to_run_config
 from bench.slam.config import SlamConfig
 from bench.slam.strategy import Strategy
 

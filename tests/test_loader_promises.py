@@ -17,8 +17,8 @@ from pathlib import Path
 import pytest
 
 from bench.cli import entry as cli
-from bench.config.compose import to_run_config
 from bench.errors import DatasetError
+from bench.run.config import to_run_config
 from bench.run.setup import open_seq
 from tests.test_bad_input import _lines, _tum_copy
 

@@ -34,7 +34,7 @@ def test_timers_bill_each_part_and_come_off() -> None:
     before = {
         "front": raster._front_fused,
         "bin": raster_fused.bin_pairs,
-        "kernel": fa._forward,
+        "kernel": fa.composite_fwd,
         "backward": torch.Tensor.backward,
         "composite_bwd": vars(fa._Composite)["backward"],
     }
@@ -63,7 +63,7 @@ def test_timers_bill_each_part_and_come_off() -> None:
         assert clock.ms.get(part, 0.0) > 0, f"{part} was not timed: {dict(clock.ms)}"
     assert set(clock.ms) <= set(mod.PARTS), set(clock.ms) - set(mod.PARTS)
     assert raster._front_fused is before["front"] and raster_fused.bin_pairs is before["bin"]
-    assert fa._forward is before["kernel"] and torch.Tensor.backward is before["backward"]
+    assert fa.composite_fwd is before["kernel"] and torch.Tensor.backward is before["backward"]
     assert vars(fa._Composite)["backward"] is before["composite_bwd"]
     from bench.slam import system
 

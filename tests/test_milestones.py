@@ -13,8 +13,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from bench.config.compose import EvalConfig
 from bench.errors import ConfigError
+from bench.run.config import EvalConfig
 from tests.test_checkpoint import TINY, bench, checkpoint_frames, keyframe_rows
 
 AT = [3, 4, 5, 6, 7, 8, 9, 10, 11, 12]  # every frame of the tiny drive from 3 on: a kill lands between rows

@@ -96,3 +96,12 @@ def test_a_plugin_that_fails_to_import_says_why(monkeypatch) -> None:
     assert got.error_line == (
         "error: strategy 'broken' failed to load from no_such_module_62:Broken: No module named 'no_such_module_62'"
     )
+
+
+def test_a_command_reports_a_known_failure_as_one_line(capsys):
+    """``bench.errors.failed``: what every command's ``main`` returns on a ``BenchError``."""
+    from bench.errors import ConfigError, failed
+
+    assert failed(ConfigError("x: expected 1, found 2")) == 2
+    assert failed(ConfigError("y"), 3) == 3
+    assert capsys.readouterr().err == "error: x: expected 1, found 2\nerror: y\n"

@@ -10,7 +10,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from bench.cli.entry import CONF_DIR  # importing the CLI registers the schemas the configs build on
-from bench.config.compose import to_run_config
+from bench.run.config import to_run_config
 from bench.run.lifecycle import run
 from tests.test_bad_input import run_cli, tiny
 

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from bench.config.compose import EvalConfig, compose, to_run_config
 from bench.errors import ConfigError
+from bench.run.config import EvalConfig, compose, to_run_config
 from tests.test_checkpoint import TINY, bench
 
 AT = [5, 17, 30]  # the tiny preset refines 30 iterations

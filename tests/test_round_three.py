@@ -72,7 +72,7 @@ def test_a_png_with_bytes_after_its_end_is_still_read(tmp_path: Path) -> None:
     import cv2
     import numpy as np
 
-    from bench.datasets._realio import read_image
+    from bench.datasets.realio import read_image
 
     path = tmp_path / "f.png"
     cv2.imwrite(str(path), np.full((8, 8), 7, np.uint8))

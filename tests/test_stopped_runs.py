@@ -218,7 +218,9 @@ def test_a_signal_reported_as_an_extensions_own_error_is_still_a_stop() -> None:
         try:
             raise stop
         except Interrupted as inner:
-            raise SystemError("CPUDispatcher(<function _schedule>) returned a result with an exception set") from inner
+            raise SystemError(
+                "CPUDispatcher(<function tile_schedule>) returned a result with an exception set"
+            ) from inner
     except SystemError as exc:
         assert signal_behind(exc) is stop
     assert signal_behind(RuntimeError("a real bug")) is None

@@ -15,11 +15,11 @@ import pandas as pd
 import pytest
 
 from bench.cli import entry as cli
-from bench.config.compose import to_run_config
-from bench.config.identity import run_keys
 from bench.config.settings import plain
-from bench.report.names import synthetic_drive
+from bench.names import synthetic_drive
 from bench.report.settings import SETTING_KEYS, _lookup
+from bench.run.config import to_run_config
+from bench.run.identity import run_keys
 from bench.sweep.study import load
 
 REPO = Path(__file__).resolve().parents[1]

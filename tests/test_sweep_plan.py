@@ -35,8 +35,8 @@ LEFT_OUT_VALUES = {
 @pytest.fixture
 def runs(monkeypatch: pytest.MonkeyPatch) -> list[Path]:
     """Replace the SLAM run by a stand-in; returns the run dirs it was given, in order."""
-    from bench.cli.validate import validate
     from bench.run import lifecycle as run_module
+    from bench.run.validate import validate
 
     dirs: list[Path] = []
 

@@ -17,8 +17,8 @@ import torch
 from plyfile import PlyData
 
 from bench.errors import ConfigError
-from bench.report.figures.pruned_run import unproject
 from bench.run.export import save_snapshot, write_map
+from bench.run.figures.pruned_run import unproject
 from bench.slam.raster import project
 from bench.viewer import cli
 from bench.viewer.scene import find_runs, read_run, splats_from_arrays

@@ -1,2 +1,2 @@
-"""The command line: argv checks (``argv``), ``--help`` (``help``), the Hydra entry (``entry``), the settings
-checked before any work (``validate``), ``python -m bench.list_strategies``."""
+"""The command line: argv checks (``argv``), ``--help`` (``help``), the Hydra entry (``entry``),
+``python -m bench.list_strategies``. The settings are checked by ``bench.run.validate``, below it."""

@@ -10,10 +10,10 @@ from pathlib import Path
 
 from bench.cli.help import strategy_names
 from bench.conf import group_files
-from bench.config.compose import compose, expected
 from bench.config.plugins import unknown_name_message
 from bench.config.settings import describe_error
 from bench.errors import BenchError, ConfigError, StrategyError
+from bench.run.config import compose, expected
 
 
 def check_overrides(argv: list[str]) -> None:
@@ -207,7 +207,7 @@ def shared_refusal(fixed: list[str], job: list[str], hyd: list[str]) -> None:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from bench.cli.validate import validate
+    from bench.run.validate import validate
     from bench.sweep.plan import planned
 
     def refusal(overrides: list[str]) -> str | None:

@@ -5,7 +5,7 @@ The configs ship inside the package (``bench/conf``) and Hydra reads them as ``p
 so a wheel install finds them as an editable one does.
 
 Before Hydra takes over, ``precheck`` composes a single run's config itself and validates it
-(``bench.cli.validate``), so a bad setting ends in one ``error:`` line and exit 2 before Hydra creates
+(``bench.run.validate``), so a bad setting ends in one ``error:`` line and exit 2 before Hydra creates
 a run dir; Hydra's own answers (a multi-line listing for an unknown option, a four-line message for
 an unknown key) are turned into that line too. In a sweep each job is checked where it runs and a
 bad one is recorded ``failed`` (``hydra_plugins/pocketbench_sweeper``) while the sweep goes on.
@@ -36,12 +36,12 @@ from bench.cli.argv import (
 )
 from bench.cli.help import register_resolvers
 from bench.conf import CONF_DIR
-from bench.config.compose import compose, register_configs
-from bench.errors import BenchError, ConfigError
+from bench.errors import BenchError, ConfigError, failed
+from bench.run.config import compose, register_configs
 from bench.sweep.summary import run_table
 
 if TYPE_CHECKING:
-    from bench.cli.validate import ValidatedRun
+    from bench.run.validate import ValidatedRun
 
 CONF_PKG = "bench.conf"
 # Hydra finds plugins (our sweeper) only in the hydra_plugins namespace package. An editable
@@ -61,7 +61,7 @@ warnings.filterwarnings("ignore", message=r"(?s).*is validated against ConfigSto
 def precheck(argv: list[str]) -> ValidatedRun | None:
     """Everything that can be refused before Hydra runs anything: one ``BenchError`` line.
 
-    Returns the run a single-run command line builds (``bench.cli.validate.ValidatedRun``), for ``bench.run.lifecycle``
+    Returns the run a single-run command line builds (``bench.run.validate.ValidatedRun``), for ``bench.run.lifecycle``
     to use rather than build again; None for a sweep (each job is validated where it runs).
     """
     parts = split_args(argv)
@@ -85,8 +85,8 @@ def precheck(argv: list[str]) -> ValidatedRun | None:
     if multirun:
         shared_refusal(job, swept, hyd)
         return None  # each job is validated where it runs (our sweeper, bench.run.lifecycle) and recorded if bad
-    from bench.cli.validate import validate
     from bench.run.lifecycle import resolve_device
+    from bench.run.validate import validate
 
     built = validate(cfg)
     resolve_device(built.config.device)  # a single run runs here: this machine must have the device
@@ -171,8 +171,7 @@ def main() -> int:
         check_overrides(sys.argv[1:])
         built = precheck(sys.argv[1:])
     except BenchError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_CONFIG
+        return failed(exc, EXIT_CONFIG)
     _PRECHECKED[:] = [built] if built is not None else []
     register_resolvers()
     _hydra_main()

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import sys
-
 from bench.config import plugins as registry
 from bench.errors import BenchError
 from bench.slam.strategy import GROUP, load_strategy
@@ -27,7 +25,3 @@ def main() -> int:
     for name, desc, origin in table:
         print(f"{name:<{width}}  {desc}\n{'':<{width}}  from {origin}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

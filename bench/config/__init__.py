@@ -1,2 +1,3 @@
-"""Settings: composition and the run config's dataclasses (``compose``), the rule on each setting's field
-(``settings``), what identifies a run (``identity``), the plugin lookup over entry points (``plugins``)."""
+"""Settings, the layer under everything they configure: the rule on each setting's field (``settings``)
+and the plugin lookup over entry points (``plugins``). A run's composition of them (``RunConfig``), its
+validation and its identity sit above what they compose, in ``bench.run``."""

@@ -25,11 +25,11 @@ import numpy as np
 import yaml
 
 from bench.config.settings import as_config, setting
-from bench.datasets import _realio as realio
+from bench.datasets import realio
 from bench.datasets.base import FrameSequence
 from bench.datasets.stereo import DepthCache, StereoConfig, StereoParams, StereoSequence
-from bench.datasets.timestamp_order import order_problem
 from bench.errors import DatasetError
+from bench.metrics.timestamp_order import order_problem
 
 LOG = logging.getLogger("bench.datasets.euroc")
 DATASET = "euroc"

@@ -18,11 +18,11 @@ from typing import Any
 import numpy as np
 
 from bench.config.settings import as_config, setting
-from bench.datasets import _realio as realio
+from bench.datasets import realio
 from bench.datasets.base import FrameSequence
 from bench.datasets.stereo import DepthCache, StereoConfig, StereoSequence
-from bench.datasets.timestamp_order import order_problem
 from bench.errors import DatasetError
+from bench.metrics.timestamp_order import order_problem
 
 LOG = logging.getLogger("bench.datasets.kitti")
 DATASET = "kitti"

@@ -22,7 +22,7 @@ from omegaconf import OmegaConf
 from bench.conf import CONF_DIR, group_files
 from bench.datasets import open_sequence
 from bench.datasets.stereo import StereoSequence
-from bench.errors import ArgumentParser, BenchError, ConfigError
+from bench.errors import ArgumentParser, BenchError, ConfigError, failed
 
 LOG = logging.getLogger("bench.datasets.prepare")
 
@@ -33,8 +33,8 @@ def load_cfg(name: str, overrides: list[str]) -> Any:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from bench.config.compose import register_configs
     from bench.config.settings import describe_error
+    from bench.run.config import register_configs
 
     files = group_files("dataset")  # ./conf/dataset/ first, then the shipped ones
     if name not in files:
@@ -120,8 +120,7 @@ def main(argv: list[str] | None = None) -> int:
             cfg = dataclasses.replace(cfg, seq=args.seq)  # as typed: '06' stays '06'
         prepare(args.dataset, cfg)
     except BenchError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return failed(exc)
     return 0
 
 

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from bench.config.settings import as_config, setting
-from bench.datasets import _realio as realio
+from bench.datasets import realio
 from bench.datasets.base import FrameSequence, RecordedConfig
 from bench.datasets.tum import TumSequence
 from bench.errors import DatasetError

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from bench.config.settings import setting
-from bench.datasets import _realio as realio
+from bench.datasets import realio
 from bench.datasets.base import RecordedConfig, TimedSequence
 from bench.errors import ConfigError
 

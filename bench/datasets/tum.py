@@ -22,10 +22,10 @@ import numpy as np
 import torch
 
 from bench.config.settings import as_config, setting
-from bench.datasets import _realio as realio
+from bench.datasets import realio
 from bench.datasets.base import FrameSequence, RecordedConfig, TimedSequence
-from bench.datasets.timestamp_order import order_problem
 from bench.errors import ConfigError, DatasetError
+from bench.metrics.timestamp_order import order_problem
 
 LOG = logging.getLogger("bench.datasets.tum")
 DATASET = "tum"

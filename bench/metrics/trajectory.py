@@ -22,9 +22,9 @@ from evo.core import metrics, sync
 from evo.core.trajectory import PoseTrajectory3D
 from evo.core.transformations import quaternion_from_matrix
 
-from bench.datasets.timestamp_order import order_problem
 from bench.errors import MetricError
 from bench.fileio import open_nofollow
+from bench.metrics.timestamp_order import order_problem
 
 ALIGNMENTS = ("se3", "sim3", "none")
 MIN_POSES = 3  # Umeyama needs 3 non-collinear points; fewer is not a trajectory error

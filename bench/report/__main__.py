@@ -11,7 +11,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from bench.errors import ArgumentParser, BenchError, ReportError
+from bench.errors import ArgumentParser, BenchError, ReportError, failed
 from bench.report import provenance_check
 from bench.report.build import load_labels, make_report, redraw
 from bench.report.collect import collect
@@ -148,8 +148,7 @@ def _main(args: argparse.Namespace) -> int:
             if stamp:
                 print(f"warning: study '{args.study}': {stamp}, stamped on its tables and README", file=sys.stderr)
     except BenchError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return failed(exc)
     for warning in result.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     skipped = f", {len(result.skipped)} malformed skipped" if result.skipped else ""

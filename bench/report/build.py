@@ -13,11 +13,11 @@ import pandas as pd
 import yaml
 
 from bench.errors import ReportError
+from bench.names import use_method_names
 from bench.report.collect import collect, finished_run_tables, grouped_run_tables, stack_run_tables
 from bench.report.figures.make import make_plots
 from bench.report.figures.output import DPI
 from bench.report.figures.runs import read_keyframes
-from bench.report.names import use_method_names
 from bench.report.paper import load_paper_tables
 from bench.report.regime import put_regime
 from bench.report.render import tables_markdown, to_latex

@@ -35,7 +35,7 @@ from typing import Any
 import pandas as pd
 import yaml
 
-from bench.errors import ReportError
+from bench.errors import ReportError, failed
 from bench.report.stats import welch_p
 
 CLAIM = re.compile(r"<!--\s*claim:\s*(\{.*?\})\s*-->")
@@ -172,8 +172,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             count += len(parse(path))
             problems += check_file(path)
     except ReportError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return failed(exc)
     for line in problems:
         print(line)
     print(f"{count} claims in {len(paths)} READMEs: {len(problems)} differ from their data")

@@ -19,9 +19,9 @@ import pandas as pd
 from bench import schema
 from bench.datasets import canonical_seq
 from bench.errors import ReportError
-from bench.report.names import method_name, synthetic_drive
+from bench.names import method_name, synthetic_drive
 from bench.report.settings import read_settings
-from bench.run.record import is_leftover
+from bench.rundir import is_leftover
 
 REQUIRED_RUN_KEYS: tuple[str, ...] = ("strategy", "dataset")
 DEFAULT_SEQ = "default"  # the harness writes seq null when a dataset has no named default sequence

@@ -11,7 +11,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from bench.errors import BenchError, ReportError
+from bench.errors import BenchError, ReportError, failed
 from bench.report.provenance_check import stamp_committed
 from bench.report.regime import paper_study, regime_committed
 
@@ -33,8 +33,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         for folder in folders:
             print(refresh(folder))
     except BenchError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return failed(exc)
     return 0
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import re
 from typing import Literal
 
-from bench.report.names import column_name, dataset_name
+from bench.names import column_name, dataset_name
 from bench.report.tables import AVG, Block, Cell, Table
 
 Target = Literal["md", "tex"]

@@ -20,8 +20,8 @@ import numpy as np
 import pandas as pd
 
 from bench import schema
+from bench.names import method_name
 from bench.report.collect import is_missing, read_run_table
-from bench.report.names import method_name
 from bench.report.paper import LOST, PAPER_STRATEGY, load_paper_tables
 from bench.report.stats import welch_p, within_noise
 from bench.report.tables import Variant, protocol_note, run_protocols, variant_runs, variants

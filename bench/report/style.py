@@ -22,7 +22,7 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from bench.report.names import LITERATURE, STRATEGY_ORDER, method_name
+from bench.names import LITERATURE, STRATEGY_ORDER, method_name
 from bench.report.tables import Variant
 
 MAX_SERIES = 7

@@ -14,8 +14,8 @@ from typing import Literal
 import pandas as pd
 
 from bench.metrics.protocol import is_masked
+from bench.names import dataset_name, file_token, method_name, paper_sequence, sequence_sort_key, strategy_rank
 from bench.report.collect import DEFAULT_PROTOCOL, is_missing
-from bench.report.names import dataset_name, file_token, method_name, paper_sequence, sequence_sort_key, strategy_rank
 from bench.report.paper import LOST, PAPER_METRIC, PAPER_STRATEGY, PAPER_UNIT, paper_values
 from bench.report.stats import ALPHA, welch_p, within_noise
 from bench.schema import UNFINISHED

@@ -14,16 +14,16 @@ import numpy as np
 import torch
 
 from bench import schema
-from bench.config.compose import RunConfig
 from bench.measure.progress import Phase
 from bench.metrics.image import MS_SSIM_MIN_PX
+from bench.run.config import RunConfig
 from bench.run.export import MAP_FILE, write_map
+from bench.run.outcome import LoopOutcome
 from bench.run.rows import FlushedRows
 from bench.slam.se3 import inverse
 from bench.slam.system import System
 
 if TYPE_CHECKING:
-    from bench.run.loop import LoopOutcome
     from bench.run.setup import RunSetup
 
 log = logging.getLogger(__name__)
@@ -82,7 +82,7 @@ def finish(
     t_eval = time.perf_counter()
     metrics.update(evaluate(cfg, out, parts, est_c2w, drive, device, images=not partial, into=metrics))
     metrics["eval_s"] = round(time.perf_counter() - t_eval, 3)  # ATE, rendering, PSNR/SSIM/LPIPS
-    from bench.report.figures.run_memory import memory_timeline
+    from bench.run.figures.run_memory import memory_timeline
 
     memory_timeline(out / "memory.png", drive.windows, title=f"{parts.keys['strategy']} on {parts.seq.name}")
     if not partial:

@@ -20,7 +20,6 @@ uncompressed float32: 56 bytes per Gaussian, written after each keyframe's prune
 from __future__ import annotations
 
 import os
-import sys
 import zipfile
 import zlib
 from pathlib import Path
@@ -28,7 +27,7 @@ from pathlib import Path
 import numpy as np
 from plyfile import PlyData, PlyElement
 
-from bench.errors import ArgumentParser, BenchError, ConfigError
+from bench.errors import ArgumentParser, BenchError, ConfigError, failed
 
 C0 = 0.28209479177387814  # the degree-0 spherical-harmonic constant, 1 / (2 sqrt(pi))
 N_REST = 45  # f_rest_* properties: 3 colours x 15 coefficients of bands 1-3
@@ -185,11 +184,6 @@ def main(argv: list[str] | None = None) -> int:
     try:
         path = export_keyframe(args.run_dir, args.keyframe, args.out)
     except BenchError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return failed(exc)
     print(f"wrote {path}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

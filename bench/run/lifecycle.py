@@ -1,11 +1,11 @@
 """``run(cfg) -> RunResult``: one SLAM run wired end to end, writing its run directory.
 
-The composed Hydra config is validated and converted once (``bench.cli.validate.validate``, which also
+The composed Hydra config is validated and converted once (``bench.run.validate.validate``, which also
 builds the strategy and a given LPIPS model; the CLI's own check hands its result over); everything
 below receives dataclasses. A run reads as its data flows: ``bench.run.setup.build`` makes the SLAM
 system around the opened sequence, ``bench.run.loop.run_frames`` feeds it the frames and writes one
 ``keyframes.csv`` row per keyframe window, ``bench.run.evaluation.finish`` refines, summarises memory,
-evaluates and plots. Its keys come from ``bench.config.identity``.
+evaluates and plots. Its keys come from ``bench.run.identity``.
 
 Everything a run learns is written as it goes: ``keyframes.csv`` rows are flushed per keyframe
 window and ``metrics.json`` is replaced atomically (``bench.run.record.RunRecord``, its one writer),
@@ -28,22 +28,21 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from bench import schema
-from bench.cli.validate import ValidatedRun, validate
 from bench.conf import config_files
-from bench.config.compose import RunConfig
-from bench.config.identity import run_keys
 from bench.config.settings import plain
 from bench.datasets import FrameSequence
 from bench.errors import BenchError, ConfigError
 from bench.fileio import link_message, planted_links
-from bench.report.figures.pruned_run import PruneViz
 from bench.run import checkpoint as ckpt
 from bench.run import evaluation, job_outputs, loop, provenance
+from bench.run.config import RunConfig
 from bench.run.determinism import repeatable
 from bench.run.export import MAP_FILE
+from bench.run.figures.pruned_run import PruneViz
+from bench.run.identity import run_keys
 from bench.run.lock import run_dir_lock
 from bench.run.loop import TRAJ_EST, flushed_rows
-from bench.run.record import RunRecord, is_leftover, owner, promote, read_record, record_refusal, write_text
+from bench.run.record import RunRecord, promote, read_record, record_refusal, write_text
 from bench.run.resume import redo_reason
 from bench.run.setup import build, describe, open_seq, restore
 from bench.run.signals import (
@@ -54,6 +53,8 @@ from bench.run.signals import (
     raise_on_signals,
     signal_behind,
 )
+from bench.run.validate import ValidatedRun, validate
+from bench.rundir import is_leftover, owner
 
 log = logging.getLogger(__name__)
 
@@ -99,7 +100,7 @@ def run(cfg: DictConfig | RunConfig, out_dir: str | Path | None = None, built: V
     refused run leaves no half-made dir; a stored run is skipped only when config, code version
     and input files all match (``bench.run.resume``); once running, SIGINT/SIGTERM end the run as
     ``interrupted`` with what the frames done allow (then ``Interrupted`` is re-raised).
-    ``built``: what ``bench.cli.validate.validate`` made of this same config already (the CLI's check
+    ``built``: what ``bench.run.validate.validate`` made of this same config already (the CLI's check
     before Hydra starts), used as it is; a config that differs from it is validated again.
     """
     if isinstance(cfg, RunConfig):
@@ -136,9 +137,31 @@ def _refuse_links(out: Path) -> None:
 
 
 def _run_locked(cfg: DictConfig, out: Path, built: ValidatedRun) -> RunResult:
-    """``run`` past validation, with ``out`` made and its lock held."""
-    conf = built.config  # below here only dataclasses travel
+    """``run`` past validation, with ``out`` made and its lock held: open the inputs, decide where the run
+    starts (skip, resume or redo), open its record, drive it, close the record, hand a stop on."""
     stored = _previous(out)
+    opened = _open_inputs(cfg, out, built)
+    if isinstance(opened, RunResult):  # refused before any work
+        return opened
+    device, seq, keys = opened
+    plan = _plan_start(built.config, out, stored, keys)
+    if isinstance(plan, RunResult):  # the same finished run is there already
+        return plan
+    out, final, start = plan
+    record = _open_record(cfg, built.config, out, final, keys, start)
+    status, error, metrics, stop, preempt = _drive(built, out, device, record, seq, start)
+    out, status, error = _close_record(record, out, final, status, error, metrics)
+    if stop is not None:
+        _hand_on(stop, preempt, out, metrics, error)
+    return RunResult(status, out, metrics, error)
+
+
+def _open_inputs(
+    cfg: DictConfig, out: Path, built: ValidatedRun
+) -> RunResult | tuple[torch.device, FrameSequence, dict[str, Any]]:
+    """The device, the opened sequence and the run's keys (its input files fingerprinted), or the refusal
+    of a run whose device, checkpoint paths or data are unusable before any work."""
+    conf = built.config  # below here only dataclasses travel
     keys = run_keys(conf, built.tree)
     try:
         device = resolve_device(conf.device)
@@ -157,7 +180,16 @@ def _run_locked(cfg: DictConfig, out: Path, built: ValidatedRun) -> RunResult:
             OmegaConf.to_yaml(cfg, resolve=True),
             cfg,
         )
-    start: dict[str, Any] | None = None  # the checkpoint a resumed run starts from
+    return device, seq, keys
+
+
+def _plan_start(
+    conf: RunConfig, out: Path, stored: dict[str, Any] | None, keys: dict[str, Any]
+) -> RunResult | tuple[Path, Path, dict[str, Any] | None]:
+    """Where this run works and starts: ``(out, final, start)``, with ``out`` the staging dir of a redo of a
+    finished run (``final`` the run dir) and ``start`` the checkpoint a resumed run starts from (None: frame
+    0); or the stored result, skipped, when resume finds the same finished run."""
+    start: dict[str, Any] | None = None
     level = logging.INFO  # of the redo line: a warning when a checkpoint was there but unusable
     final = out  # the run dir; a redo of a finished run works in its staging dir until it finishes
     reason = redo_reason(stored, keys) if conf.resume else None  # None with resume: the same finished run
@@ -181,6 +213,14 @@ def _run_locked(cfg: DictConfig, out: Path, built: ValidatedRun) -> RunResult:
             log.info("resuming %s from frame %d (checkpoint of keyframe %d)", out, start["frame"], start["keyframe"])
         elif stored is not None:
             log.log(level, "redoing %s: %s", final, reason)
+    return out, final, start
+
+
+def _open_record(
+    cfg: DictConfig, conf: RunConfig, out: Path, final: Path, keys: dict[str, Any], start: dict[str, Any] | None
+) -> RunRecord:
+    """The ``running`` record, saved, with Hydra's job files and ``config.yaml`` beside it; the rows a
+    resumed run's checkpoint did not count cut off, and a fresh run's leftovers (trajectory, checkpoints) gone."""
     record = RunRecord(
         out / schema.METRICS_FILE,
         {
@@ -217,6 +257,20 @@ def _run_locked(cfg: DictConfig, out: Path, built: ValidatedRun) -> RunResult:
     record.save()
     if start is None:
         ckpt.remove(out)  # a previous run's checkpoints: the record they belonged to is replaced now
+    return record
+
+
+def _drive(
+    built: ValidatedRun,
+    out: Path,
+    device: torch.device,
+    record: RunRecord,
+    seq: FrameSequence,
+    start: dict[str, Any] | None,
+) -> tuple[str, str | None, dict[str, Any], Interrupted | None, Preemption]:
+    """The run under its signal handlers and determinism settings: ``(status, error, metrics, stop, preempt)``,
+    a known failure or a stop turned into its status; an unexpected error is recorded and raised again."""
+    conf = built.config
     stop: Interrupted | None = None
     preempt = Preemption()
     try:
@@ -245,6 +299,15 @@ def _run_locked(cfg: DictConfig, out: Path, built: ValidatedRun) -> RunResult:
         else:
             n_done = record["metrics"].get("num_frames", 0)
             status, error, metrics, stop = "interrupted", f"{behind} after {n_done} frames", record["metrics"], behind
+    return status, error, metrics, stop, preempt
+
+
+def _close_record(
+    record: RunRecord, out: Path, final: Path, status: str, error: str | None, metrics: dict[str, Any]
+) -> tuple[Path, str, str | None]:
+    """The record closed with the run's status; a finished redo moved over the run it redid. Returns
+    ``(out, status, error)``: the run dir the result is in, and a status and error that say so when the
+    record itself could not be written."""
     with deferred_signals():  # a second Ctrl-C must not cut the record in half
         try:
             record.close(status=status, error=error, metrics=metrics)
@@ -257,16 +320,19 @@ def _run_locked(cfg: DictConfig, out: Path, built: ValidatedRun) -> RunResult:
             if write_failure(exc, out) is None:
                 raise
             status, error = "failed", f"{error or status}; {write_failure(exc, out)} (metrics.json not updated)"
-    if stop is not None:
-        if preempt.signum is not None and preempt.signum == stop.signum:
-            log.warning(
-                "%s: preempted after %d frames; checkpoint written, the launcher requeues the job",
-                out,
-                metrics.get("num_frames", 0),
-            )
-            preempt.hand_over()  # the launcher's own handler (submitit: requeue, then exit)
-        raise Interrupted(stop.signum, f"{error}; partial results in {out}")
-    return RunResult(status, out, metrics, error)
+    return out, status, error
+
+
+def _hand_on(stop: Interrupted, preempt: Preemption, out: Path, metrics: dict[str, Any], error: str | None) -> None:
+    """Raise the stop that ended the run, its record written; a preemption first goes to the launcher's handler."""
+    if preempt.signum is not None and preempt.signum == stop.signum:
+        log.warning(
+            "%s: preempted after %d frames; checkpoint written, the launcher requeues the job",
+            out,
+            metrics.get("num_frames", 0),
+        )
+        preempt.hand_over()  # the launcher's own handler (submitit: requeue, then exit)
+    raise Interrupted(stop.signum, f"{error}; partial results in {out}")
 
 
 # the file system refusing a run's writes: full, read-only, no permission, too big, a directory in a file's place

@@ -9,20 +9,20 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from bench import schema
-from bench.config.compose import RunConfig
 from bench.errors import BenchError, TrackingLost
 from bench.measure.progress import Phase
 from bench.metrics.trajectory import TumAppender, window_path_ratios
 from bench.run import checkpoint as ckpt
+from bench.run.config import RunConfig
 from bench.run.evaluation import evaluate, tracked_c2w
 from bench.run.export import save_snapshot
+from bench.run.outcome import LoopOutcome
 from bench.run.record import RunRecord
 from bench.run.rows import FlushedRows
 from bench.run.setup import RunSetup, inner_strategy
@@ -33,21 +33,6 @@ from bench.slam.system import FrameResult
 log = logging.getLogger(__name__)
 
 TRAJ_EST = "traj_est.txt"
-
-
-@dataclass
-class LoopOutcome:
-    """What the frame loop leaves behind."""
-
-    status: str = "ok"  # ok | lost | interrupted | failed (bad data mid-run)
-    error: str | None = None
-    stop: Interrupted | None = None  # the signal that ended the loop, re-raised once the record is written
-    timestamps_s: list[float] = field(default_factory=list)
-    gt_c2w: list[torch.Tensor | None] = field(default_factory=list)
-    windows: list[dict[str, Any]] = field(default_factory=list)  # the keyframes.csv rows
-    loop_s: float = 0.0  # SLAM wall time after the warm-up frames
-    warmup_s: float = 0.0  # the warm-up frames' time, left out of loop_s and fps
-    tail: dict[str, Any] = field(default_factory=dict)  # peaks and map size of the frames after the last keyframe
 
 
 def flushed_rows(out: Path) -> dict[str, int]:
@@ -84,15 +69,7 @@ def run_frames(
     )
     first = 0
     if start is not None:
-        done = json.loads(start["drive"]["json"])  # floats round-trip json exactly
-        drive.timestamps_s = start["drive"]["timestamps_s"].tolist()
-        drive.gt_c2w = list(start["drive"]["gt_c2w"])
-        drive.windows, drive.loop_s, drive.warmup_s = done["windows"], done["loop_s"], done["warmup_s"]
-        between = done["between"]
-        first = start["frame"]
-        metrics.update(num_frames=first, num_keyframes=len(drive.windows))
-        bar.update(first)
-    every = cfg.checkpoint.every
+        between, first = _resume(drive, start, metrics, bar)
     parts.probe.start_window()
     with (
         FlushedRows(out / schema.KEYFRAMES_FILE, schema.KEYFRAME_COLUMNS, start is not None) as keyframes,
@@ -131,13 +108,7 @@ def run_frames(
                         milestones.writerow(milestone_row(cfg, parts, drive, out))
                 if res.is_keyframe:
                     assert res.keyframe_index is not None  # System.step sets it with is_keyframe
-                    if cfg.save_maps == "every_keyframe":
-                        save_snapshot(out, res.keyframe_index, system.map)
-                    metrics["num_keyframes"] = len(drive.windows)
-                    if every and (res.keyframe_index + 1) % every == 0:
-                        write_checkpoint(cfg, parts, drive, out, record, between)
-                    record.save()  # still running; counts so far, for a later reader
-                    parts.probe.start_window()
+                    _close_window(cfg, parts, drive, out, record, between, res.keyframe_index)
                 bar.update(1, gaussians=len(system.map), fps=f"{(i + 1 - warmup) / max(drive.loop_s, 1e-9):.2f}")
                 if preempt is not None and preempt.signum is not None:  # held since it came: stop here, resumable
                     write_checkpoint(cfg, parts, drive, out, record, between)
@@ -160,6 +131,42 @@ def run_frames(
             drive.tail = {**parts.probe.end_window(), "n_gaussians": len(system.map)}
             parts.probe.close()
     return drive
+
+
+def _resume(
+    drive: LoopOutcome, start: dict[str, Any], metrics: dict[str, Any], bar: Phase
+) -> tuple[dict[str, Any], int]:
+    """A checkpoint's loop state put back into ``drive``, ``metrics`` and the progress bar; returns what the
+    frames since the last keyframe pruned, and the first frame still to run."""
+    done = json.loads(start["drive"]["json"])  # floats round-trip json exactly
+    drive.timestamps_s = start["drive"]["timestamps_s"].tolist()
+    drive.gt_c2w = list(start["drive"]["gt_c2w"])
+    drive.windows, drive.loop_s, drive.warmup_s = done["windows"], done["loop_s"], done["warmup_s"]
+    first = start["frame"]
+    metrics.update(num_frames=first, num_keyframes=len(drive.windows))
+    bar.update(first)
+    return done["between"], first
+
+
+def _close_window(
+    cfg: RunConfig,
+    parts: RunSetup,
+    drive: LoopOutcome,
+    out: Path,
+    record: RunRecord,
+    between: dict[str, Any],
+    keyframe: int,
+) -> None:
+    """After keyframe ``keyframe``'s row: its map snapshot (``save_maps=every_keyframe``), a checkpoint every
+    ``checkpoint.every`` keyframes, the record saved, and the next memory window opened."""
+    if cfg.save_maps == "every_keyframe":
+        save_snapshot(out, keyframe, parts.system.map)
+    record["metrics"]["num_keyframes"] = len(drive.windows)
+    every = cfg.checkpoint.every
+    if every and (keyframe + 1) % every == 0:
+        write_checkpoint(cfg, parts, drive, out, record, between)
+    record.save()  # still running; counts so far, for a later reader
+    parts.probe.start_window()
 
 
 def write_checkpoint(

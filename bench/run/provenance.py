@@ -96,15 +96,14 @@ def collect(device: torch.device) -> dict[str, Any]:
     }
 
 
-# what a result depends on (the configs live in bench/conf); the report code only reads results,
-# except the figures a run draws into its own dir (RUN_FIGURES), which are part of what a run writes
+# what a result depends on (the configs live in bench/conf); the report code only reads results
+# (the figures a run draws into its own dir are the run's: bench/run/figures/)
 CODE_PATHS = ("bench", "strategies", "hydra_plugins", "pyproject.toml")
 READ_ONLY_PATHS = ("bench/report/",)
-RUN_FIGURES = ("bench/report/figures/run_memory.py", "bench/report/figures/pruned_run.py")
 
 
 def _is_code(path: str) -> bool:
-    return not path.startswith(READ_ONLY_PATHS) or path in RUN_FIGURES
+    return not path.startswith(READ_ONLY_PATHS)
 
 
 def code_version() -> dict[str, Any]:
@@ -123,13 +122,11 @@ def code_version() -> dict[str, Any]:
         if listing is None
         else "\n".join(line for line in listing.splitlines() if _is_code(line.split("\t", 1)[-1]))
     )
-    # git's exclude pathspecs cannot take a file back in, so the run's figures are asked about apart
     status = _git("status", "--porcelain", "--untracked-files=no", "--", *paths)
-    status_figures = _git("status", "--porcelain", "--untracked-files=no", "--", *RUN_FIGURES)
-    dirty = bool(status) or bool(status_figures) if status is not None else None
+    dirty = bool(status) if status is not None else None
     diff = None
     if dirty:
-        diff = (_git("diff", "HEAD", "--", *paths) or "") + (_git("diff", "HEAD", "--", *RUN_FIGURES) or "")
+        diff = _git("diff", "HEAD", "--", *paths) or ""
     try:
         package = version("pocketbench")
     except PackageNotFoundError:

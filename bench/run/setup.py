@@ -14,15 +14,15 @@ from typing import Any
 
 import torch
 
-from bench.cli.validate import ValidatedRun
-from bench.config.compose import RunConfig
-from bench.config.identity import dataset_name
 from bench.datasets import FrameSequence, open_sequence
 from bench.errors import ConfigError
 from bench.measure.memory import MemoryProbe
 from bench.measure.timing import PhaseTimer
-from bench.report.figures.pruned_run import PruneViz
 from bench.run import checkpoint as ckpt
+from bench.run.config import RunConfig
+from bench.run.figures.pruned_run import PruneViz
+from bench.run.identity import dataset_name
+from bench.run.validate import ValidatedRun
 from bench.slam.keyframes import STORE_DIR
 from bench.slam.strategy import CheckedStrategy, Strategy
 from bench.slam.system import System
@@ -40,7 +40,7 @@ class RunSetup:
     probe: MemoryProbe
     viz: PruneViz | None = None  # viz.pruning
     lpips: Any = None  # what validate loaded from eval.lpips_weights; None: loaded at evaluation if at all
-    keys: dict[str, Any] = field(default_factory=dict)  # the run block of metrics.json (bench.config.identity)
+    keys: dict[str, Any] = field(default_factory=dict)  # the run block of metrics.json (bench.run.identity)
 
 
 def open_seq(cfg: RunConfig) -> FrameSequence:
@@ -115,8 +115,8 @@ def inner_strategy(strategy: Strategy) -> Strategy:
 
 
 def describe(keys: dict[str, Any]) -> str:
-    """A run in a figure title: strategy, keep ratio and preset, from its keys (``bench.config.identity.run_keys``)."""
-    from bench.report.names import method_name
+    """A run in a figure title: strategy, keep ratio and preset, from its keys (``bench.run.identity.run_keys``)."""
+    from bench.names import method_name
 
     ratio = "" if keys["keep_ratio"] is None else f", keep {keys['keep_ratio']:g}"
     return f"{method_name(keys['strategy'])} ({keys['strategy']}{ratio}, slam={keys['slam_preset']})"

@@ -26,7 +26,7 @@ from typing import Any
 
 import torch
 
-from bench.slam.raster_gsplat import ALPHA_MIN, LOG_T_STOP, TILE_PX  # gsplat's rules, as the torch chunks use them
+from bench.slam.gsplat_rules import ALPHA_MIN, LOG_T_STOP, TILE_PX  # gsplat's rules, as the torch chunks use them
 
 
 @functools.lru_cache(maxsize=1)

@@ -35,16 +35,12 @@ strategy reads it).
 from __future__ import annotations
 
 import functools
-import math
 
 import torch
 
 from bench.errors import ConfigError
+from bench.slam.gsplat_rules import ALPHA_MIN, GSPLAT_ALPHA_MAX, LOG_T_STOP, TILE_PX
 
-TILE_PX = 16  # gsplat's tile_size here: the reference's tile, so tile ids and tiles_xy mean the same
-ALPHA_MIN = 1.0 / 255.0  # gsplat's ALPHA_THRESHOLD (Common.h)
-GSPLAT_ALPHA_MAX = 0.999  # gsplat's clamp (RasterizeToPixels3DGSFwd.cu)
-LOG_T_STOP = math.log(1e-4)  # gsplat stops a pixel before the Gaussian that brings T to 1e-4 or below
 STATS_CHUNK_ELEMS = 1 << 18  # pair x pixel elements per statistics chunk: its temporaries stay a few tens of MiB
 
 

@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from omegaconf import OmegaConf
 
 from bench.conf import group_files
-from bench.errors import ConfigError
+from bench.errors import ConfigError, failed
 from bench.sweep.studyfile import GROUP, Job, Study, check_file, check_name, expand, parse
 
 __all__ = ["GROUP", "Job", "Study", "check_name", "expand", "load", "main", "parse"]
@@ -26,7 +26,7 @@ __all__ = ["GROUP", "Job", "Study", "check_name", "expand", "load", "main", "par
 def load(name: str, extra: Sequence[str] = ()) -> tuple[Study, list[Job]]:
     """Study ``name`` from ``./conf/study/`` (or the package's), and each of its runs with its dir
     (``bench.sweep.plan``: the dir the sweeper gives the job)."""
-    from bench.config.compose import compose
+    from bench.run.config import compose
     from bench.sweep.plan import job_dir, own_dirs
 
     check_name(name)
@@ -68,8 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         study, jobs = load(argv[0], argv[1:])
     except ConfigError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return failed(exc)
     for job in jobs:
         print(f"{job.run_dir}  {' '.join(job.overrides)}")
     done = sum((job.run_dir / "metrics.json").is_file() for job in jobs)
@@ -79,7 +78,3 @@ def main(argv: list[str] | None = None) -> int:
         file=sys.stderr,
     )
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -7,11 +7,10 @@ on stdout, and the page has a dropdown to switch between them; ``--run`` picks t
 
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
-from bench.errors import ArgumentParser, BenchError, ConfigError
+from bench.errors import ArgumentParser, BenchError, ConfigError, failed
 from bench.viewer.scene import find_runs, has_map, run_label
 
 EXIT_ERROR = 2
@@ -81,8 +80,7 @@ def main(argv: list[str] | None = None) -> int:
 
         viewer = Viewer(slots, host=args.host, port=args.port, keyframe=args.keyframe)
     except BenchError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_ERROR
+        return failed(exc, EXIT_ERROR)
     try:
         print(f"serving {', '.join(s.scene.label for s in viewer.slots)} at {viewer.url} (Ctrl-C stops)", flush=True)
         while True:
@@ -92,7 +90,3 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         viewer.stop()
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -17,7 +17,7 @@ import time
 import urllib.request
 from pathlib import Path
 
-from bench.errors import ArgumentParser, BenchError, ConfigError
+from bench.errors import ArgumentParser, BenchError, ConfigError, failed
 
 BROWSERS = ("chromium", "chromium-browser", "google-chrome", "chrome")
 DISMISS = "document.querySelectorAll('.mantine-Notification-closeButton, [class*=CloseButton]').forEach(b => b.click())"
@@ -104,8 +104,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ConfigError(f"--size: expected WIDTHxHEIGHT, found {args.size}")
         path = screenshot(args.url, args.out, args.wait, (int(w), int(h)))
     except BenchError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return failed(exc)
     print(f"wrote {path}")
     return 0
 

@@ -115,7 +115,7 @@ class BenchSweeper(BasicSweeper):
 
 def _run_keys(config: Any, overrides: Sequence[str]) -> dict[str, Any]:
     """Best-effort run keys of a job that never composed: its overrides over the sweep's base config."""
-    from bench.config.identity import run_keys
+    from bench.run.identity import run_keys
 
     given = dict(o.lstrip("+~").partition("=")[::2] for o in overrides)
     keys = ("strategy.name", "dataset.name", "slam.name", "seed")

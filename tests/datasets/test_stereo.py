@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from bench.config.settings import as_config
-from bench.datasets import _realio as realio
+from bench.datasets import realio
 from bench.datasets.stereo import DepthCache, StereoParams, disparity_to_depth
 from bench.errors import ConfigError
 

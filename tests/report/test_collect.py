@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 
 from bench.errors import BenchError
+from bench.names import method_name, paper_sequence
 from bench.report.collect import ReportError, collect, find_run_dirs, read_run
-from bench.report.names import method_name, paper_sequence
 
 
 def test_runs_csv_has_one_row_per_usable_run(report, n_usable: int) -> None:

@@ -10,10 +10,10 @@ from pathlib import Path
 import pytest
 import yaml
 
+from bench.names import METHOD_NAMES
 from bench.report.__main__ import main
 from bench.report.build import load_labels, make_report
 from bench.report.collect import ReportError
-from bench.report.names import METHOD_NAMES
 
 PDF, SVG, PNG = b"%PDF-", b"<?xml", b"\x89PNG\r\n\x1a\n"
 REPO = Path(__file__).resolve().parents[2]
@@ -140,13 +140,13 @@ def test_a_pareto_per_sequence_keeps_each_routes_own_points(make_run, tmp_path):
     make_run(root / "3", strategy="pocket", seq="1", dataset="synthetic", peak_mem_mib=200.0, ate_rmse_m=0.2)
     runs = collect([root]).runs
     low: list[float] = []  # each figure's memory axis, lower limit
-    real_save = pareto._save
+    real_save = pareto.save_figure
 
     def keep(fig, path):
         low.append(fig.axes[0].get_xlim()[0])
         return real_save(fig, path)
 
-    with mock.patch.object(pareto, "_save", keep):
+    with mock.patch.object(pareto, "save_figure", keep):
         per_route = pareto.plot_pareto(runs, "synthetic", tmp_path, seq="1")
         pooled = pareto.plot_pareto(runs, "synthetic", tmp_path)
     assert per_route is not None and per_route.name == "pareto_synthetic_1.png"

@@ -170,7 +170,7 @@ def test_pruned_figure_puts_strategies_on_their_last_common_keyframe(tmp_path: P
 
 
 def test_literature_criteria_get_a_panel_of_their_own() -> None:
-    from bench.report.names import LITERATURE
+    from bench.names import LITERATURE
 
     paper = ("none", "pocket", "area", "opacity", "gradient", "mask")
     found = [Variant(s, 0.4, s, "default") for s in (*paper, *LITERATURE)]

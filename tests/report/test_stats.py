@@ -101,12 +101,12 @@ def test_a_single_seed_sweep_says_it_has_no_noise_estimate(tmp_path, make_run):
 
 
 def test_per_seed_points_average_the_same_sequences_as_the_mean(report):
-    from bench.report.figures.ratio import _per_seed_average
+    from bench.report.figures.ratio import per_seed_average
     from bench.report.tables import variant_runs, variants
 
     kitti = report.runs[report.runs["dataset"] == "kitti"]
     none = next(v for v in variants(kitti) if v.strategy == "none")
-    per_seed = _per_seed_average(variant_runs(kitti, none), "ate_rmse_m")
+    per_seed = per_seed_average(variant_runs(kitti, none), "ate_rmse_m")
     assert per_seed.to_dict() == pytest.approx({0: 0.15, 1: 0.16})  # (0.10 + 0.20) / 2, (0.12 + 0.20) / 2
 
 

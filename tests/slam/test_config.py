@@ -56,7 +56,7 @@ def _composed(*overrides: str):
     from hydra import compose, initialize_config_dir
 
     from bench.cli.entry import CONF_DIR
-    from bench.config.compose import to_run_config
+    from bench.run.config import to_run_config
 
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
         return to_run_config(compose(config_name="config", overrides=list(overrides)))
@@ -85,7 +85,7 @@ def test_splatam_preset_is_splatams_densification_and_nothing_else():
 
 
 def test_released_experiment_composes_the_released_schedule():
-    from bench.config.identity import run_keys
+    from bench.run.identity import run_keys
 
     cfg = _composed("+experiment=released", "dataset=kitti")
     prune = cfg.prune

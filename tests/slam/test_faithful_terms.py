@@ -144,7 +144,7 @@ def test_keyframe_rows_carry_the_fit_of_their_own_render(seq):
 
 def test_faithful_preset_changes_only_what_it_names():
     from bench.cli.entry import compose
-    from bench.cli.validate import validate
+    from bench.run.validate import validate
 
     default = validate(compose([])).config.slam
     faithful = validate(compose(["slam=faithful"])).config.slam
@@ -155,7 +155,7 @@ def test_faithful_preset_changes_only_what_it_names():
 
 def test_faithful_fit_preset_is_the_faithful_one_plus_what_it_names():
     from bench.cli.entry import compose
-    from bench.cli.validate import validate
+    from bench.run.validate import validate
 
     kitti = ["dataset=kitti", "dataset.root=/nowhere"]  # not the synthetic default, whose refine_iters is its own
     faithful = validate(compose(["slam=faithful", *kitti])).config.slam

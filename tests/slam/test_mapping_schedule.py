@@ -9,9 +9,9 @@ import pytest
 import torch
 
 from bench.cli.entry import compose
-from bench.config.compose import to_run_config
 from bench.datasets.synthetic import open_sequence
 from bench.errors import ConfigError
+from bench.run.config import to_run_config
 from bench.slam.config import SlamConfig
 from bench.slam.strategy import PruneConfig, load_strategy
 from bench.slam.system import System

@@ -274,7 +274,7 @@ def test_binning_orders_pairs_as_a_stable_depth_argsort():
         )
         tile_start, gid = raster_fused.bin_pairs(rect, z, tiles_x * tiles_y, tiles_x)
         order = torch.argsort(z, stable=True).to(torch.int32).numpy()
-        ref_start, ref_gid = binning._bin_pairs(order, rect.numpy(), tiles_x * tiles_y, tiles_x)
+        ref_start, ref_gid = binning.bin_pairs_kernel(order, rect.numpy(), tiles_x * tiles_y, tiles_x)
         assert gid.numel() > n // 2
         assert np.array_equal(tile_start.numpy(), ref_start)
         assert np.array_equal(gid.numpy(), ref_gid)
@@ -328,7 +328,7 @@ def test_pixel_loops_compile_to_vector_code():
 
     if "+avx2" not in llvm.get_host_cpu_features().flatten().split(","):
         pytest.skip("the host has no AVX2")
-    flags = {k: v for k, v in rf._KERNEL.items() if k != "cache"}
+    flags = {k: v for k, v in rf.KERNEL_OPTIONS.items() if k != "cache"}
     f32, u64 = np.float32, np.uint64
     gaussian = [f32(v) for v in (0.0, 3.0, 1.0, 1.0, 1.0, 0.0, 1.0, 0.5, -5.0, 1.0, 1.0, 1.0, 1.0, 3.0)]
     for span, size in ((rf._forward_span, rf.S_SIZE), (rf._backward_span, rf.B_SIZE)):

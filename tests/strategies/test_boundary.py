@@ -123,11 +123,13 @@ def test_a_strategy_error_raised_inside_a_hook_gets_the_name():
 
 
 def test_every_hook_of_the_contract_is_forwarded_and_checked():
-    """The wrapper's hooks come from one table: each hook of ``Strategy`` reaches the strategy through it."""
+    """Each hook of ``Strategy`` is a method of the wrapper of its own (not the base's no-op), and reaches the
+    strategy through it."""
     import bench.slam.strategy as contract
 
     public = {n for n, v in vars(Strategy).items() if callable(v) and not n.startswith("_")}
     assert set(contract.HOOKS) == public
+    assert public <= set(vars(CheckedStrategy)), f"not forwarded: {sorted(public - set(vars(CheckedStrategy)))}"
     called = []
 
     class Spy(Strategy):

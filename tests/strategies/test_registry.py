@@ -97,7 +97,7 @@ def test_third_party_plugin_is_found_through_its_entry_point(tmp_path, monkeypat
             load_strategy("mine", {"thresold": 0.7})
         # registered the one typed way: +strategy=mine composes its dataclass, typed like a built-in's
         from bench.cli.entry import compose, composition_error
-        from bench.config.compose import register_configs, to_run_config
+        from bench.run.config import register_configs, to_run_config
 
         assert "mine" in register_configs()  # no YAML of its own: strategy/mine built on its schema
         cfg = to_run_config(compose(["+strategy=mine", "strategy.params.threshold=0.25"]))
@@ -112,7 +112,7 @@ def test_third_party_plugin_is_found_through_its_entry_point(tmp_path, monkeypat
 
 
 def test_list_strategies_names_the_literature_criteria_and_their_origin():
-    from bench.report.names import LITERATURE
+    from bench.names import LITERATURE
 
     out = subprocess.run(
         [sys.executable, "-m", "bench.list_strategies"],

@@ -1,7 +1,6 @@
-"""Every figure pocketbench draws, one module per figure family.
+"""Every figure of a report, one module per figure family (a run's own figures are ``bench.run.figures``).
 
-Per run (beside its metrics.json): ``run_memory`` (the memory timeline) and ``pruned_run``
-(``viz.pruning``: what a prune removed). Per report (``make.make_plots``): ``per_keyframe``,
+Per report (``make.make_plots``): ``per_keyframe``,
 ``trajectory``, ``density``, ``pruned``, ``milestones``, ``drift``, ``ratio``, ``pareto``, over the
 readers in ``runs`` and the file settings in ``output``.
 

@@ -10,9 +10,9 @@ import pandas as pd
 from matplotlib.colors import LogNorm
 from matplotlib.ticker import FormatStrFormatter, NullFormatter
 
-from bench.report.figures.output import Warn, _image_axes, _save
+from bench.names import dataset_name, file_token
+from bench.report.figures.output import Warn, image_axes, save_figure
 from bench.report.figures.runs import representative
-from bench.report.names import dataset_name, file_token
 from bench.report.style import (
     Panel,
     fig_title,
@@ -96,7 +96,7 @@ def plot_density(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Wa
             mappable = ax.imshow(np.ma.masked_less(cell, 1.0), cmap="inferno", norm=norm, alpha=0.8, extent=extent)
             ax.set_xlim(-0.5, counts.shape[1] - 0.5)
             ax.set_ylim(counts.shape[0] - 0.5, -0.5)
-            _image_axes(ax, strategy_colour(variant.strategy, known))
+            image_axes(ax, strategy_colour(variant.strategy, known))
             ax.set_title(f"{series_label(variant, panel)}\n{int(counts.sum()):,} centres in view", fontsize=8)
         if panel.title and first:
             axes[r, 0].set_ylabel(panel.title, fontsize=8)
@@ -113,4 +113,4 @@ def plot_density(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Wa
         fig,
         f"Gaussian density at the last keyframe, {dataset_name(dataset)} {seq} (lowest seed; frame colour = method)",
     )
-    return _save(fig, out / f"density_{file_token(dataset)}_{file_token(seq)}.png")
+    return save_figure(fig, out / f"density_{file_token(dataset)}_{file_token(seq)}.png")

@@ -6,16 +6,16 @@ from pathlib import Path
 
 import pandas as pd
 
+from bench.names import sequence_sort_key
 from bench.report.figures.density import plot_density
 from bench.report.figures.drift import plot_drift
 from bench.report.figures.milestones import plot_milestones
-from bench.report.figures.output import DPI, Warn, _output, check_figure_options
+from bench.report.figures.output import DPI, OUTPUT, Warn, check_figure_options
 from bench.report.figures.pareto import plot_pareto
 from bench.report.figures.per_keyframe import MEMORY_VS_DISTANCE, PER_KEYFRAME, plot_per_keyframe
 from bench.report.figures.pruned import plot_pruned
 from bench.report.figures.ratio import plot_ratio
 from bench.report.figures.trajectory import plot_trajectory
-from bench.report.names import sequence_sort_key
 
 
 def make_plots(
@@ -32,8 +32,8 @@ def make_plots(
     ``milestones`` (run path -> its rows) stand in for run dirs that are gone (``redraw``).
     ``long_drives``: also memory against distance and accuracy at the milestones (``eval.at_frames``)."""
     check_figure_options(formats, dpi)
-    previous = dict(_output)
-    _output.update(
+    previous = dict(OUTPUT)
+    OUTPUT.update(
         formats=tuple(formats),
         dpi=int(dpi),
         keyframes=keyframes or {},
@@ -43,7 +43,7 @@ def make_plots(
     try:
         first = _make_plots(runs, out, warn)
     finally:
-        _output.update(previous)
+        OUTPUT.update(previous)
     return [p.with_suffix(f".{ext}") for p in first for ext in formats]
 
 
@@ -55,7 +55,7 @@ def _make_plots(runs: pd.DataFrame, out: Path, warn: Warn) -> list[Path]:
         for seq in sorted(set(ds["seq"]), key=lambda s: sequence_sort_key(dataset, s)):
             for stem, title, rows in PER_KEYFRAME:
                 written.append(plot_per_keyframe(ds, dataset, seq, out, warn, stem, title, rows))
-            if _output["long_drives"]:  # the scale study's figures (bench/report/route_scale.py)
+            if OUTPUT["long_drives"]:  # the scale study's figures (bench/report/route_scale.py)
                 written.append(plot_per_keyframe(ds, dataset, seq, out, warn, *MEMORY_VS_DISTANCE, x_col="distance_m"))
                 written.append(plot_milestones(ds, dataset, seq, out, warn))
                 written.append(plot_drift(ds, dataset, seq, out, warn))

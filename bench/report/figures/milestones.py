@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from bench.report.figures.output import Warn, _output
+from bench.report.figures.output import OUTPUT, Warn
 from bench.report.figures.per_keyframe import plot_per_keyframe
 from bench.report.figures.runs import KfValue
 
@@ -19,7 +19,7 @@ def plot_milestones(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn:
     one = runs[runs["seq"] == seq]
     cache: dict[str, pd.DataFrame | None] = {}
     for path in one["path"]:
-        cache[str(path)] = _output["milestones"].get(str(path))
+        cache[str(path)] = OUTPUT["milestones"].get(str(path))
         if cache[str(path)] is None:
             cache[str(path)] = read_milestones(Path(path), warn)
     if not any(v is not None and len(v) for v in cache.values()):

@@ -15,15 +15,15 @@ Warn = Callable[[str], None]
 DPI = 110
 FORMATS: tuple[str, ...] = ("png", "pdf", "svg")
 # What the figure files are made as; ``make_plots`` sets it for the duration of one report.
-_output: dict[str, Any] = {"formats": ("png",), "dpi": DPI, "keyframes": {}, "milestones": {}, "long_drives": False}
+OUTPUT: dict[str, Any] = {"formats": ("png",), "dpi": DPI, "keyframes": {}, "milestones": {}, "long_drives": False}
 
 
-def _save(fig: Figure, path: Path) -> Path:
+def save_figure(fig: Figure, path: Path) -> Path:
     """Write ``path`` in every requested format (same stem); returns the first one's path."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    written = [path.with_suffix(f".{ext}") for ext in _output["formats"]]
+    written = [path.with_suffix(f".{ext}") for ext in OUTPUT["formats"]]
     for target in written:
-        fig.savefig(target, dpi=_output["dpi"])
+        fig.savefig(target, dpi=OUTPUT["dpi"])
     return written[0]
 
 
@@ -32,7 +32,7 @@ def _style_key(label: str, **line: Any) -> Line2D:
     return Line2D([], [], color="black", label=label, **line)
 
 
-def _image_axes(ax, colour: str) -> None:
+def image_axes(ax, colour: str) -> None:
     """An image panel framed in its strategy's colour (the figures' one key to who is who)."""
     ax.set_xticks([])
     ax.set_yticks([])

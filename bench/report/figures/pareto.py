@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from bench.report.figures.output import _save
-from bench.report.figures.ratio import _dataset_average, _per_seed_average
-from bench.report.names import dataset_name, file_token
+from bench.names import dataset_name, file_token
+from bench.report.figures.output import save_figure
+from bench.report.figures.ratio import dataset_average, per_seed_average
 from bench.report.style import (
     apply_fonts,
     fig_title,
@@ -47,7 +47,7 @@ def plot_pareto(runs: pd.DataFrame, dataset: str, out: Path, seq: str | None = N
     n_seqs = runs["seq"].nunique()
     memory: dict[Variant, tuple[float, int]] = {}
     for variant in variants(runs):
-        mem, covered = _dataset_average(variant_runs(runs, variant), "peak_mem_mib")
+        mem, covered = dataset_average(variant_runs(runs, variant), "peak_mem_mib")
         if mem is not None:
             memory[variant] = (mem, covered)
     panels = [p for p in panel_groups(list(memory)) if p.variants]
@@ -65,14 +65,14 @@ def plot_pareto(runs: pd.DataFrame, dataset: str, out: Path, seq: str | None = N
             for variant in panel.variants:
                 mem, mem_covered = memory[variant]
                 vr = variant_runs(runs, variant)
-                value, covered = _dataset_average(vr, metric)
+                value, covered = dataset_average(vr, metric)
                 if value is None:
                     continue
                 complete = min(covered, mem_covered) == n_seqs
                 colour = strategy_colour(variant.strategy, known)
                 _, marker = ratio_style(variant, panel)
                 seeds = pd.concat(
-                    [_per_seed_average(vr, "peak_mem_mib"), _per_seed_average(vr, metric)],
+                    [per_seed_average(vr, "peak_mem_mib"), per_seed_average(vr, metric)],
                     axis=1,
                     keys=["mem", "value"],
                 ).dropna()
@@ -122,6 +122,6 @@ def plot_pareto(runs: pd.DataFrame, dataset: str, out: Path, seq: str | None = N
     seeds = f"mean of {most_seeds} seeds" if most_seeds >= 2 else "1 seed: no noise estimate"
     if seq is None:
         fig_title(fig, f"Accuracy vs peak memory, {dataset_name(dataset)} (mean over sequences, {seeds})")
-        return _save(fig, out / f"pareto_{file_token(dataset)}.png")
+        return save_figure(fig, out / f"pareto_{file_token(dataset)}.png")
     fig_title(fig, f"Accuracy vs peak memory, {dataset_name(dataset)} {seq} ({seeds})")
-    return _save(fig, out / f"pareto_{file_token(dataset)}_{file_token(seq)}.png")
+    return save_figure(fig, out / f"pareto_{file_token(dataset)}_{file_token(seq)}.png")

@@ -8,9 +8,9 @@ import pandas as pd
 from matplotlib.artist import Artist
 from matplotlib.patches import Patch
 
-from bench.report.figures.output import Warn, _save
-from bench.report.figures.runs import KfValue, _peak, _runs_to_show, peak_column, seed_band
-from bench.report.names import dataset_name, file_token
+from bench.names import dataset_name, file_token
+from bench.report.figures.output import Warn, save_figure
+from bench.report.figures.runs import KfValue, peak_column, peak_series, runs_to_show, seed_band
 from bench.report.style import (
     apply_fonts,
     band,
@@ -41,7 +41,7 @@ MEMORY_VS_DISTANCE: tuple[str, str, tuple[tuple[str, KfValue], ...]] = (
             "Gaussians in the map [thousands]",
             lambda _r, kf: kf["n_gaussians"] / 1e3 if "n_gaussians" in kf.columns else None,
         ),
-        ("peak memory [MiB]", lambda r, kf: _peak(r, kf)),
+        ("peak memory [MiB]", lambda r, kf: peak_series(r, kf)),
     ),
 )
 # (file stem, figure title, rows: (y label, value of one run's keyframes.csv))
@@ -50,7 +50,7 @@ PER_KEYFRAME: tuple[tuple[str, str, tuple[tuple[str, KfValue], ...]], ...] = (
         "memory_per_keyframe",
         "Memory per keyframe",
         (
-            ("peak memory [MiB]", _peak),
+            ("peak memory [MiB]", peak_series),
             ("map state [MiB]\n(parameters, gradients, Adam)", lambda _r, kf: kf["state_mib"]),
         ),
     ),
@@ -119,7 +119,7 @@ def plot_per_keyframe(
                 drawn += 1
                 most_seeds = max(most_seeds, n)
                 any_lost = any_lost or lost
-            shown, _ = _runs_to_show(vr)
+            shown, _ = runs_to_show(vr)
             for _, run in shown.iterrows():
                 kf = cache.get(str(run["path"]))
                 column = None if kf is None else peak_column(run, kf)
@@ -143,4 +143,4 @@ def plot_per_keyframe(
         handles.append(key("(every seed lost: lost runs shown)", "white"))
     legend_outside(fig, handles)
     fig_title(fig, f"{title}, {dataset_name(dataset)} {seq}")
-    return _save(fig, out / f"{stem}_{file_token(dataset)}_{file_token(seq)}.png")
+    return save_figure(fig, out / f"{stem}_{file_token(dataset)}_{file_token(seq)}.png")

@@ -6,10 +6,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from bench.report.figures import pruned_run as viz
-from bench.report.figures.output import Warn, _image_axes, _save
+from bench.names import dataset_name, file_token
+from bench.report.figures.output import Warn, image_axes, save_figure
 from bench.report.figures.runs import representative
-from bench.report.names import dataset_name, file_token
 from bench.report.style import (
     fig_title,
     new_figure,
@@ -18,6 +17,7 @@ from bench.report.style import (
     strategy_colour,
 )
 from bench.report.tables import Variant, variant_runs, variants
+from bench.run.figures import pruned_run as viz
 
 PRUNED_GLOB = viz.PRUNED_GLOB
 
@@ -72,7 +72,7 @@ def plot_pruned(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: War
         axes = fig.subplots(len(data) + 1, 3, squeeze=False)
         axes[0, 0].imshow(data[0][1]["image"])
         axes[0, 0].set_title(f"keyframe {kf} (frame {int(data[0][1]['frame'])})", fontsize=8)
-        _image_axes(axes[0, 0], "0.5")
+        image_axes(axes[0, 0], "0.5")
         for ax in axes[0, 1:]:
             ax.set_axis_off()
         note = axes[0, 1].text(
@@ -88,15 +88,15 @@ def plot_pruned(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: War
                 axes[row, col].set_title(
                     f"render {when} the prune ({viz.caption_psnr_db(image, r['image']):.2f} dB)", fontsize=8
                 )
-                _image_axes(axes[row, col], colour)
+                image_axes(axes[row, col], colour)
             points = viz.draw_centres(axes[row, 2], r, norm, size=2.0)
             axes[row, 2].set_title(f"{int(r['n_pruned']):,} of {int(r['n_before']):,} Gaussians pruned", fontsize=8)
             axes[row, 0].set_ylabel(name.replace(" (", "\n("), fontsize=8)
-            _image_axes(axes[row, 2], colour)
+            image_axes(axes[row, 2], colour)
         if points is not None:
             fig.colorbar(points, ax=axes[1:, 2].tolist(), label="coverage $C_i$ [px]", shrink=0.6)
         where = ", " + panel.title.replace("\n", " ") if panel.title else ""
         fig_title(fig, f"What each strategy pruned, {dataset_name(dataset)} {seq}{where} (PSNR against the keyframe)")
         token = f"_{file_token(panel.title)}" if panel.title else ""
-        written.append(_save(fig, out / f"pruned_{file_token(dataset)}_{file_token(seq)}{token}_kf{kf:03d}.png"))
+        written.append(save_figure(fig, out / f"pruned_{file_token(dataset)}_{file_token(seq)}{token}_kf{kf:03d}.png"))
     return written

@@ -10,8 +10,8 @@ import numpy as np
 import pandas as pd
 from matplotlib.patches import Patch
 
-from bench.report.figures.output import _save
-from bench.report.names import dataset_name, file_token, method_name
+from bench.names import dataset_name, file_token, method_name
+from bench.report.figures.output import save_figure
 from bench.report.style import (
     apply_fonts,
     band,
@@ -26,7 +26,7 @@ from bench.report.tables import variant_runs, variants
 DODGE = 0.008  # keep-ratio offset between strategies run at one ratio, so their bars do not overlap
 
 
-def _dataset_average(runs: pd.DataFrame, metric: str) -> tuple[float | None, int]:
+def dataset_average(runs: pd.DataFrame, metric: str) -> tuple[float | None, int]:
     """Mean over sequences of the seed means of ok runs (the tables' Avg), and how many
     sequences it covers."""
     ok = runs[(runs["status"] == "ok") & runs[metric].notna()] if metric in runs else runs.iloc[0:0]
@@ -36,7 +36,7 @@ def _dataset_average(runs: pd.DataFrame, metric: str) -> tuple[float | None, int
     return float(statistics.fmean(per_seq)), len(per_seq)
 
 
-def _per_seed_average(runs: pd.DataFrame, metric: str) -> pd.Series:
+def per_seed_average(runs: pd.DataFrame, metric: str) -> pd.Series:
     """Per seed, the mean over sequences of its ok runs; only seeds that ran every sequence the
     variant has a value on, so each point averages the same sequences as the mean does."""
     if metric not in runs:
@@ -77,10 +77,10 @@ def plot_ratio(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
             for variant in mine:
                 vr = variant_runs(runs, variant)
                 all_lost = bool(len(vr)) and not (vr["status"] == "ok").any() and (vr["status"] == "lost").any()
-                seeds = _per_seed_average(vr, metric)
+                seeds = per_seed_average(vr, metric)
                 spread = float(seeds.std()) if len(seeds) > 1 else float("nan")
                 by_strategy.setdefault(variant.strategy, []).append(
-                    (variant.keep_ratio, _dataset_average(vr, metric)[0], spread, all_lost)
+                    (variant.keep_ratio, dataset_average(vr, metric)[0], spread, all_lost)
                 )
             for strategy, points in by_strategy.items():
                 colour = strategy_colour(strategy, known)
@@ -123,4 +123,4 @@ def plot_ratio(runs: pd.DataFrame, dataset: str, out: Path) -> Path | None:
         handles.append(key("x: all seeds lost", "black", "none", "x", mew=2))
     legend_outside(fig, handles)
     fig_title(fig, f"Accuracy vs keep ratio, {dataset_name(dataset)} (mean over sequences and seeds)")
-    return _save(fig, out / f"ratio_{file_token(dataset)}.png")
+    return save_figure(fig, out / f"ratio_{file_token(dataset)}.png")

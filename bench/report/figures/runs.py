@@ -15,7 +15,7 @@ from bench.metrics.trajectory import (
     read_tum,
 )
 from bench.report.collect import read_run_table
-from bench.report.figures.output import Warn, _output
+from bench.report.figures.output import OUTPUT, Warn
 
 
 def representative(runs: pd.DataFrame) -> pd.Series | None:
@@ -28,7 +28,7 @@ def representative(runs: pd.DataFrame) -> pd.Series | None:
 
 
 def read_keyframes(run_dir: Path, warn: Warn) -> pd.DataFrame | None:
-    stored = _output.get("keyframes", {}).get(str(run_dir))
+    stored = OUTPUT.get("keyframes", {}).get(str(run_dir))
     if stored is not None:
         return stored
     frame = read_run_table(Path(run_dir) / schema.KEYFRAMES_FILE, (("kf", "frame"), "state_mib"), warn, "in plots")
@@ -64,7 +64,7 @@ def peak_column(run: pd.Series, keyframes: pd.DataFrame) -> str | None:
     return column if column in keyframes.columns and keyframes[column].notna().any() else None
 
 
-def _runs_to_show(vr: pd.DataFrame) -> tuple[pd.DataFrame, bool]:
+def runs_to_show(vr: pd.DataFrame) -> tuple[pd.DataFrame, bool]:
     """The seeds a per-keyframe line averages: the ok runs, or the lost ones where none is ok."""
     ok = vr[vr["status"] == "ok"]
     if len(ok):
@@ -84,7 +84,7 @@ def seed_band(
     Seeds may key-frame at different frames: each seed's series is interpolated onto the union of
     their frames, within its own range only, and the std needs two seeds at a frame (else NaN).
     """
-    shown, lost = _runs_to_show(vr)
+    shown, lost = runs_to_show(vr)
     series: list[tuple[np.ndarray, np.ndarray]] = []
     for _, run in shown.iterrows():
         path = str(run["path"])
@@ -115,6 +115,6 @@ def seed_band(
     return grid, mean, std, len(series), lost
 
 
-def _peak(run: pd.Series, kf: pd.DataFrame) -> pd.Series | None:
+def peak_series(run: pd.Series, kf: pd.DataFrame) -> pd.Series | None:
     column = peak_column(run, kf)
     return None if column is None else kf[column]

@@ -15,10 +15,10 @@ from bench.metrics.trajectory import (
     aligned_positions,
     read_tum,
 )
+from bench.names import dataset_name, file_token
 from bench.report.collect import is_missing
-from bench.report.figures.output import Warn, _save
+from bench.report.figures.output import Warn, save_figure
 from bench.report.figures.runs import representative
-from bench.report.names import dataset_name, file_token
 from bench.report.style import (
     Panel,
     apply_fonts,
@@ -135,4 +135,4 @@ def plot_trajectory(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn:
     seed = f"seed {min(seeds_shown)}" if len(seeds_shown) == 1 else "lowest seed of each method"
     scale = "" if to_scale else "; x and y not to one scale"
     fig_title(fig, f"Trajectory, {dataset_name(dataset)} {seq} (top view, {seed}, aligned as for ATE{scale})")
-    return _save(fig, out / f"trajectory_{file_token(dataset)}_{file_token(seq)}.png")
+    return save_figure(fig, out / f"trajectory_{file_token(dataset)}_{file_token(seq)}.png")

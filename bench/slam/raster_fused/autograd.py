@@ -8,16 +8,16 @@ import torch
 
 from bench.slam.raster_fused.compositing import (
     G_SIZE,
-    _backward,
-    _forward,
-    _pack,
-    _reduce_stats,
-    _reduce_sum,
-    _schedule,
+    composite_bwd,
+    composite_fwd,
+    pack,
+    reduce_stats,
+    reduce_sum,
+    tile_schedule,
 )
 from bench.slam.raster_fused.constants import N_FEAT
-from bench.slam.raster_fused.kernel_cache import _load_from_cache
-from bench.slam.raster_fused.projection import _project_bwd, _project_fwd, _sum_rows
+from bench.slam.raster_fused.kernel_cache import load_from_cache
+from bench.slam.raster_fused.projection import project_bwd, project_fwd, sum_rows
 from bench.slam.raster_fused.threads import set_threads
 
 
@@ -38,7 +38,7 @@ class _Project(torch.autograd.Function):
         rect = torch.empty(n, 4, dtype=torch.int32)
         radius_px = torch.empty(n, dtype=torch.int64)
         tile_id = torch.empty(n, dtype=torch.int64)
-        _project_fwd(
+        project_fwd(
             mw.numpy(),
             ls.numpy(),
             q.numpy(),
@@ -74,7 +74,7 @@ class _Project(torch.autograd.Function):
         g_means, g_ls, g_q = torch.empty(n, 3), torch.empty(n, 3), torch.empty(n, 4)
         g_pose_rows = torch.empty(n, 12)  # [N, 12]
         gaussians = any(ctx.needs_input_grad[:3])
-        _project_bwd(
+        project_bwd(
             mw.numpy(),
             ls.numpy(),
             q.numpy(),
@@ -93,7 +93,7 @@ class _Project(torch.autograd.Function):
             g_pose_rows.numpy(),
         )
         g_pose = torch.zeros(12)
-        _sum_rows(g_pose_rows.numpy(), g_pose.numpy())
+        sum_rows(g_pose_rows.numpy(), g_pose.numpy())
         g_w2c = torch.zeros(4, 4)
         g_w2c[:3, :3] = g_pose[:9].reshape(3, 3)
         g_w2c[:3, 3] = g_pose[9:]
@@ -116,7 +116,7 @@ def project(
 ) -> tuple[torch.Tensor, ...]:
     """means2d [N, 2], cov [N, 3] (a, b, c), z [N] (differentiable in means, log-scales, quats and the
     pose w2c [4, 4]); rect [N, 4] int32, radius_px [N], tile_id [N] as ``raster._front`` defines them."""
-    _load_from_cache()
+    load_from_cache()
     cam = torch.stack([K[0, 0], K[1, 1], K[0, 2], K[1, 2]]).detach().float().cpu()
     return _Project.apply(means, log_scales, quats, w2c, cam, width, height, near_m, tiles_x, tiles_y)
 
@@ -140,9 +140,9 @@ class _Composite(torch.autograd.Function):
         pair_hits = torch.empty(n_pairs, dtype=torch.int32)
         pair_maxw = torch.empty(n_pairs, dtype=torch.float32)
         gp = torch.empty(m2.shape[0], G_SIZE, dtype=torch.float32)  # [N, 16]
-        _pack(m2.numpy(), co.numpy(), op.numpy(), ft.numpy(), gp.numpy())
-        order, bounds = _schedule(tile_start.numpy(), numba.get_num_threads())
-        _forward(
+        pack(m2.numpy(), co.numpy(), op.numpy(), ft.numpy(), gp.numpy())
+        order, bounds = tile_schedule(tile_start.numpy(), numba.get_num_threads())
+        composite_fwd(
             gid.numpy(),
             tile_start.numpy(),
             gp.numpy(),
@@ -164,7 +164,7 @@ class _Composite(torch.autograd.Function):
         hit_count = torch.zeros(n if stats else 0, dtype=torch.int64)
         max_weight = torch.zeros(n if stats else 0, dtype=torch.float32)
         if stats:
-            _reduce_stats(
+            reduce_stats(
                 gid.numpy(),
                 pair_cov.numpy(),
                 pair_hits.numpy(),
@@ -188,8 +188,8 @@ class _Composite(torch.autograd.Function):
         g_acc = torch.zeros(hw, N_FEAT) if g_acc is None else g_acc.contiguous().to(torch.float32)
         g_t = torch.zeros(hw) if g_t is None else g_t.contiguous().to(torch.float32)
         pair_grad = torch.empty(gid.shape[0], 10, dtype=torch.float32)  # [P, 10]
-        order, bounds = _schedule(tile_start.numpy(), numba.get_num_threads())
-        _backward(
+        order, bounds = tile_schedule(tile_start.numpy(), numba.get_num_threads())
+        composite_bwd(
             gid.numpy(),
             tile_start.numpy(),
             gp.numpy(),
@@ -205,7 +205,7 @@ class _Composite(torch.autograd.Function):
             pair_grad.numpy(),
         )
         grad = torch.zeros(gp.shape[0], 10, dtype=torch.float32)  # [N, 10]
-        _reduce_sum(gid.numpy(), pair_grad.numpy(), grad.numpy())
+        reduce_sum(gid.numpy(), pair_grad.numpy(), grad.numpy())
         del pair_grad
         return grad[:, 0:2], grad[:, 2:5], grad[:, 5], grad[:, 6:10], None, None, None, None, None, None
 

@@ -8,7 +8,7 @@ from numba import njit
 
 
 @njit(cache=True)
-def _bin_pairs(order, rect, n_tiles, tiles_x):  # pragma: no cover - compiled
+def bin_pairs_kernel(order, rect, n_tiles, tiles_x):  # pragma: no cover - compiled
     """Counting sort of (tile, Gaussian) pairs by tile; within a tile by depth (``order`` is depth-sorted).
 
     rect: [N, 4] int32 tile rectangle (x0, x1, y0, y1), empty when x0 == x1 or y0 == y1.
@@ -35,7 +35,7 @@ def _bin_pairs(order, rect, n_tiles, tiles_x):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _depth_order(z, rect):  # pragma: no cover - compiled
+def depth_order(z, rect):  # pragma: no cover - compiled
     """The Gaussians with a non-empty tile rectangle, in the order ``torch.argsort(z, stable=True)`` puts them.
 
     An LSD radix sort (four stable 8-bit passes) on keys that order as the float32 values do; a general
@@ -87,15 +87,15 @@ def bin_pairs(
     """
     z = depths.detach().contiguous()
     if z.dtype == torch.float32:
-        order = _depth_order(z.numpy(), rect.numpy())  # [M] the Gaussians that touch a tile, by depth
+        order = depth_order(z.numpy(), rect.numpy())  # [M] the Gaussians that touch a tile, by depth
     else:
         order = torch.argsort(z, stable=True).to(torch.int32).numpy()  # [N]
-    tile_start, gid = _bin_pairs(order, rect.numpy(), n_tiles, tiles_x)
+    tile_start, gid = bin_pairs_kernel(order, rect.numpy(), n_tiles, tiles_x)
     return torch.from_numpy(tile_start), torch.from_numpy(gid)
 
 
 @njit(cache=True)
-def _in_view(rect, out):  # pragma: no cover - compiled
+def in_view_kernel(rect, out):  # pragma: no cover - compiled
     """out[:V] = indices of the Gaussians with a non-empty tile rectangle, ascending; returns V."""
     v = 0
     for g in range(rect.shape[0]):
@@ -108,4 +108,4 @@ def _in_view(rect, out):  # pragma: no cover - compiled
 def in_view(rect: torch.Tensor) -> torch.Tensor:
     """[V] int64: the Gaussians that touch a tile (rect [N, 4] int32 as ``project`` returns it), in index order."""
     out = torch.empty(rect.shape[0], dtype=torch.int64)
-    return out[: _in_view(rect.numpy(), out.numpy())]
+    return out[: in_view_kernel(rect.numpy(), out.numpy())]

@@ -10,10 +10,9 @@ from llvmlite import ir as llvm_ir
 from numba import njit, prange, types
 from numba.extending import intrinsic
 
-from bench.slam.raster_fused import threads as _threading_layer  # noqa: F401 - set before a parallel kernel runs
-from bench.slam.raster_fused.constants import _F, ALPHA_MAX, ALPHA_MIN, COVERAGE_POWER_MIN, N_FEAT, T_MIN, TILE
+from bench.slam.raster_fused.constants import ALPHA_MAX, ALPHA_MIN, COVERAGE_POWER_MIN, F32, N_FEAT, T_MIN, TILE
 
-LN255 = _F(math.log(255.0))
+LN255 = F32(math.log(255.0))
 
 # The compositing kernels are written so that LLVM vectorises their pixel loops (8 float32 lanes of
 # AVX2, or 16 of AVX-512 where the host runs it at full width); breaking one of these rules gives
@@ -49,7 +48,9 @@ SATURATION_CHECK = 8
 G_MX, G_MY, G_A, G_B, G_C, G_O, G_F0, G_EX, G_EY, G_PMIN = 0, 1, 2, 3, 4, 5, 6, 10, 11, 12
 G_SIZE = 16
 ALIGN_F32 = 16  # float32s in 64 bytes: a cache line, and an AVX-512 register
-_KERNEL: dict[str, Any] = dict(cache=True, fastmath=True, error_model="numpy")  # numpy's model: no zero-division branch
+KERNEL_OPTIONS: dict[str, Any] = dict(
+    cache=True, fastmath=True, error_model="numpy"
+)  # numpy's model: no zero-division branch
 
 
 @intrinsic
@@ -63,28 +64,28 @@ def _bits_to_f32(typingctx, bits):  # pragma: no cover - compiled
     return sig, codegen
 
 
-@njit(inline="always", **_KERNEL)
-def _exp(x):  # pragma: no cover - compiled
+@njit(inline="always", **KERNEL_OPTIONS)
+def exp_f32(x):  # pragma: no cover - compiled
     """float32 exp(x) for x <= 0 as 2^n p(f) (Cephes' expf polynomial), relative error ~1e-7.
 
     np.exp compiles to a scalar libm call (pip's llvmlite has no vector maths library), which keeps
     every loop around it scalar; this is plain arithmetic, with 2^n put into the exponent bits."""
-    x = min(max(x, _F(-87.0)), _F(0.0))
-    n = np.floor(x * _F(1.44269504) + _F(0.5))
-    f = x - n * _F(0.693359375) + n * _F(2.12194440e-4)
-    p = _F(1.9875691500e-4)
-    p = p * f + _F(1.3981999507e-3)
-    p = p * f + _F(8.3334519073e-3)
-    p = p * f + _F(4.1665795894e-2)
-    p = p * f + _F(1.6666665459e-1)
-    p = p * f + _F(5.0000001201e-1)
-    p = p * f * f + f + _F(1.0)
+    x = min(max(x, F32(-87.0)), F32(0.0))
+    n = np.floor(x * F32(1.44269504) + F32(0.5))
+    f = x - n * F32(0.693359375) + n * F32(2.12194440e-4)
+    p = F32(1.9875691500e-4)
+    p = p * f + F32(1.3981999507e-3)
+    p = p * f + F32(8.3334519073e-3)
+    p = p * f + F32(4.1665795894e-2)
+    p = p * f + F32(1.6666665459e-1)
+    p = p * f + F32(5.0000001201e-1)
+    p = p * f * f + f + F32(1.0)
     # an @intrinsic is called without its typingctx, which numba supplies; its stub takes it as an argument
-    return p * _bits_to_f32(np.int32(n + _F(127.0)) << np.int32(23))  # type: ignore[call-arg]
+    return p * _bits_to_f32(np.int32(n + F32(127.0)) << np.int32(23))  # type: ignore[call-arg]
 
 
-@njit(parallel=True, **_KERNEL)
-def _pack(m2, conic, opac, feat, gp):  # pragma: no cover - compiled
+@njit(parallel=True, **KERNEL_OPTIONS)
+def pack(m2, conic, opac, feat, gp):  # pragma: no cover - compiled
     """gp [N, 16]: each Gaussian's mean, conic, opacity, features, and the half-extents of its 1/255
     box and its exponent threshold, computed once per Gaussian rather than once per (tile, Gaussian)."""
     for g in prange(m2.shape[0]):
@@ -95,19 +96,19 @@ def _pack(m2, conic, opac, feat, gp):  # pragma: no cover - compiled
         for ch in range(N_FEAT):
             gp[g, G_F0 + ch] = feat[g, ch]
         det = a * c - b * b
-        ex = ey = _F(-1.0)  # an empty box
-        if o >= ALPHA_MIN and det > _F(0.0):
-            r2 = _F(2.0) * (LN255 + np.log(o))  # d^T S^-1 d <= r2  <=>  o exp(power) >= 1/255
-            ex = np.sqrt(r2 * c / det) + _F(1e-3)  # axis extents (S_xx = c / det, S_yy = a / det) + a margin
-            ey = np.sqrt(r2 * a / det) + _F(1e-3)
+        ex = ey = F32(-1.0)  # an empty box
+        if o >= ALPHA_MIN and det > F32(0.0):
+            r2 = F32(2.0) * (LN255 + np.log(o))  # d^T S^-1 d <= r2  <=>  o exp(power) >= 1/255
+            ex = np.sqrt(r2 * c / det) + F32(1e-3)  # axis extents (S_xx = c / det, S_yy = a / det) + a margin
+            ey = np.sqrt(r2 * a / det) + F32(1e-3)
         gp[g, G_EX], gp[g, G_EY] = ex, ey
         # below this exponent o exp(power) < 1/255 (with a margin, so the exact test decides at the edge)
-        gp[g, G_PMIN] = -LN255 - np.log(o) - _F(1e-3) if o > _F(0.0) else _F(np.inf)
+        gp[g, G_PMIN] = -LN255 - np.log(o) - F32(1e-3) if o > F32(0.0) else F32(np.inf)
         for j in range(G_PMIN + 1, G_SIZE):
-            gp[g, j] = _F(0.0)
+            gp[g, j] = F32(0.0)
 
 
-@njit(inline="always", **_KERNEL)
+@njit(inline="always", **KERNEL_OPTIONS)
 def _aligned_state(size):  # pragma: no cover - compiled
     """A tile-state buffer that starts on a 64-byte boundary.
 
@@ -120,10 +121,10 @@ def _aligned_state(size):  # pragma: no cover - compiled
     return raw[skip : skip + size]
 
 
-@njit(inline="always", **_KERNEL)
-def _box(mx, my, ex, ey, x0, x1, y0, y1):  # pragma: no cover - compiled
+@njit(inline="always", **KERNEL_OPTIONS)
+def pixel_box(mx, my, ex, ey, x0, x1, y0, y1):  # pragma: no cover - compiled
     """Pixels [bx0, bx1) x [by0, by1) of the tile within (ex, ey) of (mx, my) (empty if none, or ex < 0)."""
-    if ex < _F(0.0):
+    if ex < F32(0.0):
         return 0, 0, 0, 0
     bx0 = max(x0, int(np.ceil(mx - ex)))
     bx1 = min(x1, int(np.floor(mx + ex)) + 1)
@@ -134,7 +135,7 @@ def _box(mx, my, ex, ey, x0, x1, y0, y1):  # pragma: no cover - compiled
     return bx0, bx1, by0, by1
 
 
-@njit(inline="always", **_KERNEL)
+@njit(inline="always", **KERNEL_OPTIONS)
 def _row_meets(y, mx, my, a, b, c, slope, q2, dx0, dx1):  # pragma: no cover - compiled
     """Whether row y of the ellipse a dx^2 + 2 b dx dy + c dy^2 <= q2 reaches dx in [dx0, dx1] (float64):
     the quadratic is convex in dx, so its least value there is at its minimiser slope dy, clamped."""
@@ -143,7 +144,7 @@ def _row_meets(y, mx, my, a, b, c, slope, q2, dx0, dx1):  # pragma: no cover - c
     return a * dx * dx + 2.0 * b * dx * dy + c * dy * dy <= q2
 
 
-@njit(inline="always", **_KERNEL)
+@njit(inline="always", **KERNEL_OPTIONS)
 def _rows(mx, my, a, b, c, p_min, cx0, cx1, by0, by1):  # pragma: no cover - compiled
     """Rows [lo, hi) of [by0, by1) where the 1/255 ellipse meets columns [cx0, cx1): the backward's spans
     (the forward takes the box's rows whole: there the tests below cost more than the lanes they save).
@@ -164,14 +165,14 @@ def _rows(mx, my, a, b, c, p_min, cx0, cx1, by0, by1):  # pragma: no cover - com
     return lo, hi
 
 
-@njit(inline="always", **_KERNEL)
+@njit(inline="always", **KERNEL_OPTIONS)
 def _span(h, ry0, ry1, y0):  # pragma: no cover - compiled
     """Flat state indices [lo, hi) of rows [ry0, ry1) of column half h."""
     return _U(h) * _UHALF_PIX + _U(ry0 - y0) * _UH, _U(h) * _UHALF_PIX + _U(ry1 - y0) * _UH
 
 
-@njit(inline="always", **_KERNEL)
-def _tile_pixels(t, tiles_x, width, height):  # pragma: no cover - compiled
+@njit(inline="always", **KERNEL_OPTIONS)
+def tile_pixels(t, tiles_x, width, height):  # pragma: no cover - compiled
     """Pixel range [x0, x1) x [y0, y1) of tile t, clipped at the image border."""
     x0 = (t % tiles_x) * TILE
     y0 = (t // tiles_x) * TILE
@@ -179,7 +180,7 @@ def _tile_pixels(t, tiles_x, width, height):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _schedule(tile_start, n_threads):  # pragma: no cover - compiled
+def tile_schedule(tile_start, n_threads):  # pragma: no cover - compiled
     """Tiles dealt to threads by cost (pairs per tile, largest first, round robin), so that the
     threads finish together: the work of a tile, not its position, decides its thread.
 
@@ -199,7 +200,7 @@ def _schedule(tile_start, n_threads):  # pragma: no cover - compiled
     return order, bounds
 
 
-@njit(inline="always", **_KERNEL)
+@njit(inline="always", **KERNEL_OPTIONS)
 def _forward_span(st, lo, hi, fx0, fx1, mx, my, a, b, c, o, p_min, f0, f1, f2, f3, kl):  # pragma: no cover
     """One Gaussian over state pixels [lo, hi), masked to its box columns [fx0, fx1): branch-free, so
     that it compiles to 8-lane vector code (a lane that takes no part adds zero and keeps its state)."""
@@ -207,39 +208,39 @@ def _forward_span(st, lo, hi, fx0, fx1, mx, my, a, b, c, o, p_min, f0, f1, f2, f
         xv = st[S_X + i]
         dx = xv - mx
         dy = st[S_Y + i] - my
-        power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
-        raw = o * _exp(power)
+        power = F32(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
+        raw = o * exp_f32(power)
         alpha = min(raw, ALPHA_MAX)
         tp = st[S_T + i]
-        test_t = tp * (_F(1.0) - alpha)
-        ok = (xv >= fx0) & (xv < fx1) & (st[S_DONE + i] == _F(0.0)) & (power >= p_min) & (raw >= ALPHA_MIN)
+        test_t = tp * (F32(1.0) - alpha)
+        ok = (xv >= fx0) & (xv < fx1) & (st[S_DONE + i] == F32(0.0)) & (power >= p_min) & (raw >= ALPHA_MIN)
         use = ok & (test_t >= T_MIN)
-        w = alpha * tp if use else _F(0.0)
+        w = alpha * tp if use else F32(0.0)
         st[S_A0 + i] += w * f0
         st[S_A1 + i] += w * f1
         st[S_A2 + i] += w * f2
         st[S_A3 + i] += w * f3
         st[S_T + i] = test_t if use else tp
         st[S_LAST + i] = kl if use else st[S_LAST + i]
-        st[S_DONE + i] = _F(1.0) if ok & (test_t < T_MIN) else st[S_DONE + i]
+        st[S_DONE + i] = F32(1.0) if ok & (test_t < T_MIN) else st[S_DONE + i]
         st[S_W + i] = w
 
 
-@njit(inline="always", **_KERNEL)
+@njit(inline="always", **KERNEL_OPTIONS)
 def _coverage_span(st, lo, hi, fx0, fx1, mx, my, a, b, c, o):  # pragma: no cover - compiled
     """Sum of o exp(power) over state pixels [lo, hi) in columns [fx0, fx1): the pruning statistic's share."""
-    cov = _F(0.0)
+    cov = F32(0.0)
     for i in range(lo, hi):
         xv = st[S_X + i]
         dx = xv - mx
         dy = st[S_Y + i] - my
-        power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
-        cov += o * _exp(power) if (xv >= fx0) & (xv < fx1) else _F(0.0)
+        power = F32(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
+        cov += o * exp_f32(power) if (xv >= fx0) & (xv < fx1) else F32(0.0)
     return cov
 
 
-@njit(parallel=True, **_KERNEL)
-def _forward(
+@njit(parallel=True, **KERNEL_OPTIONS)
+def composite_fwd(
     gid,
     tile_start,
     gp,
@@ -266,20 +267,20 @@ def _forward(
         st = _aligned_state(S_SIZE)
         for j in range(bounds[th], bounds[th + 1]):
             t = order[j]
-            x0, x1, y0, y1 = _tile_pixels(t, tiles_x, width, height)
+            x0, x1, y0, y1 = tile_pixels(t, tiles_x, width, height)
             for i in range(NPIX):
-                st[S_X + i] = _F(x0 + (i // (NPIX // 2)) * HALF + i % HALF)
-                st[S_Y + i] = _F(y0 + (i // HALF) % TILE)
-                st[S_T + i] = _F(1.0)
-                st[S_A0 + i] = st[S_A1 + i] = st[S_A2 + i] = st[S_A3 + i] = _F(0.0)
-                st[S_LAST + i] = _F(-1.0)
-                st[S_DONE + i] = _F(0.0)
+                st[S_X + i] = F32(x0 + (i // (NPIX // 2)) * HALF + i % HALF)
+                st[S_Y + i] = F32(y0 + (i // HALF) % TILE)
+                st[S_T + i] = F32(1.0)
+                st[S_A0 + i] = st[S_A1 + i] = st[S_A2 + i] = st[S_A3 + i] = F32(0.0)
+                st[S_LAST + i] = F32(-1.0)
+                st[S_DONE + i] = F32(0.0)
             s = tile_start[t]
             n_pix = (x1 - x0) * (y1 - y0)
             n_active = n_pix
             for k in range(s, tile_start[t + 1]):
                 if (k - s) % SATURATION_CHECK == 0 and n_active > 0:
-                    n_done = _F(0.0)
+                    n_done = F32(0.0)
                     for i in range(NPIX):
                         n_done += st[S_DONE + i]
                     n_active = n_pix - int(n_done)
@@ -289,8 +290,8 @@ def _forward(
                 mx, my = gp[g, G_MX], gp[g, G_MY]
                 a, b, c, o = gp[g, G_A], gp[g, G_B], gp[g, G_C], gp[g, G_O]
                 hits = 0
-                maxw = _F(0.0)
-                bx0, bx1, by0, by1 = _box(mx, my, gp[g, G_EX], gp[g, G_EY], x0, x1, y0, y1)
+                maxw = F32(0.0)
+                bx0, bx1, by0, by1 = pixel_box(mx, my, gp[g, G_EX], gp[g, G_EY], x0, x1, y0, y1)
                 if n_active > 0 and by1 > by0:
                     p_min = gp[g, G_PMIN]
                     for h in range((bx0 - x0) // HALF, (bx1 - x0 + HALF - 1) // HALF):
@@ -300,8 +301,8 @@ def _forward(
                             st,
                             lo,
                             hi,
-                            _F(bx0),
-                            _F(bx1),
+                            F32(bx0),
+                            F32(bx1),
                             mx,
                             my,
                             a,
@@ -313,27 +314,27 @@ def _forward(
                             gp[g, G_F0 + 1],
                             gp[g, G_F0 + 2],
                             gp[g, G_F0 + 3],
-                            _F(k - s),
+                            F32(k - s),
                         )
                         if stats:
                             for i in range(lo, hi):
                                 w = st[S_W + i]
-                                hits += 1 if w > _F(0.0) else 0
+                                hits += 1 if w > F32(0.0) else 0
                                 maxw = max(maxw, w)
                 if stats:
                     pair_hits[k] = hits
                     pair_maxw[k] = maxw
-                    cov = _F(0.0)
+                    cov = F32(0.0)
                     det = a * c - b * b
-                    if o > _F(0.0) and det > _F(0.0):
-                        r2 = _F(-2.0) * COVERAGE_POWER_MIN
-                        cx0, cx1, cy0, cy1 = _box(
-                            mx, my, np.sqrt(r2 * c / det) + _F(1.0), np.sqrt(r2 * a / det) + _F(1.0), x0, x1, y0, y1
+                    if o > F32(0.0) and det > F32(0.0):
+                        r2 = F32(-2.0) * COVERAGE_POWER_MIN
+                        cx0, cx1, cy0, cy1 = pixel_box(
+                            mx, my, np.sqrt(r2 * c / det) + F32(1.0), np.sqrt(r2 * a / det) + F32(1.0), x0, x1, y0, y1
                         )
                         if cy1 > cy0:
                             for h in range((cx0 - x0) // HALF, (cx1 - x0 + HALF - 1) // HALF):
                                 lo, hi = _span(h, cy0, cy1, y0)
-                                cov += _coverage_span(st, lo, hi, _F(cx0), _F(cx1), mx, my, a, b, c, o)
+                                cov += _coverage_span(st, lo, hi, F32(cx0), F32(cx1), mx, my, a, b, c, o)
                     pair_cov[k] = cov
             for y in range(y0, y1):
                 for x in range(x0, x1):
@@ -341,14 +342,14 @@ def _forward(
                     ip = _U((x - x0) // HALF * (NPIX // 2) + (y - y0) * HALF + (x - x0) % HALF)
                     t_final[p] = st[S_T + ip]
                     k_loc = st[S_LAST + ip]
-                    last[p] = s + int(k_loc) if k_loc >= _F(0.0) else -1
+                    last[p] = s + int(k_loc) if k_loc >= F32(0.0) else -1
                     acc[p, 0] = st[S_A0 + ip]
                     acc[p, 1] = st[S_A1 + ip]
                     acc[p, 2] = st[S_A2 + ip]
                     acc[p, 3] = st[S_A3 + ip]
 
 
-@njit(inline="always", **_KERNEL)
+@njit(inline="always", **KERNEL_OPTIONS)
 def _backward_span(st, lo, hi, fx0, fx1, mx, my, a, b, c, o, p_min, f0, f1, f2, f3, kl):  # pragma: no cover
     """One Gaussian over state pixels [lo, hi), back to front: its 10 gradient sums over the span.
 
@@ -361,13 +362,13 @@ def _backward_span(st, lo, hi, fx0, fx1, mx, my, a, b, c, o, p_min, f0, f1, f2, 
         xv = st[B_X + i]
         dx = xv - mx
         dy = st[B_Y + i] - my
-        power = _F(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
-        gauss = _exp(power)
+        power = F32(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
+        gauss = exp_f32(power)
         raw = o * gauss
         alpha = min(raw, ALPHA_MAX)
         ok = (xv >= fx0) & (xv < fx1) & (st[B_LK + i] >= kl) & (power >= p_min) & (raw >= ALPHA_MIN)
-        okf = _F(1.0) if ok else _F(0.0)
-        inv_one_m = _F(1.0) / (_F(1.0) - alpha)
+        okf = F32(1.0) if ok else F32(0.0)
+        inv_one_m = F32(1.0) / (F32(1.0) - alpha)
         tcur = st[B_TC + i]
         t_before = tcur * inv_one_m
         w = alpha * t_before * okf
@@ -381,12 +382,12 @@ def _backward_span(st, lo, hi, fx0, fx1, mx, my, a, b, c, o, p_min, f0, f1, f2, 
         st[B_B1 + i] = b1 + w * f1
         st[B_B2 + i] = b2 + w * f2
         st[B_B3 + i] = b3 + w * f3
-        st[B_TC + i] = tcur * (inv_one_m * okf + (_F(1.0) - okf))
+        st[B_TC + i] = tcur * (inv_one_m * okf + (F32(1.0) - okf))
         st[B_W + i] = w
         # the clamp at 0.99 passes no gradient
-        st[B_U + i] = g_alpha * gauss * (_F(1.0) if ok & (raw < ALPHA_MAX) else _F(0.0))
-    s1 = s2 = sxx = syy = sxy = go = _F(0.0)
-    gf0 = gf1 = gf2 = gf3 = _F(0.0)
+        st[B_U + i] = g_alpha * gauss * (F32(1.0) if ok & (raw < ALPHA_MAX) else F32(0.0))
+    s1 = s2 = sxx = syy = sxy = go = F32(0.0)
+    gf0 = gf1 = gf2 = gf3 = F32(0.0)
     for i in range(lo, hi):
         dx = st[B_X + i] - mx
         dy = st[B_Y + i] - my
@@ -406,9 +407,9 @@ def _backward_span(st, lo, hi, fx0, fx1, mx, my, a, b, c, o, p_min, f0, f1, f2, 
     return (
         o * (a * s1 + b * s2),
         o * (b * s1 + c * s2),
-        _F(-0.5) * o * sxx,
+        F32(-0.5) * o * sxx,
         -o * sxy,
-        _F(-0.5) * o * syy,
+        F32(-0.5) * o * syy,
         go,
         gf0,
         gf1,
@@ -417,12 +418,12 @@ def _backward_span(st, lo, hi, fx0, fx1, mx, my, a, b, c, o, p_min, f0, f1, f2, 
     )
 
 
-@njit(parallel=True, **_KERNEL)
-def _backward(
+@njit(parallel=True, **KERNEL_OPTIONS)
+def composite_bwd(
     gid, tile_start, gp, width, height, tiles_x, order, bounds, t_final, last, g_acc, g_t, pair_grad
 ):  # pragma: no cover - compiled
     """Per tile, its list back to front from the last contributor (3DGS's backward pass), each
-    Gaussian over the rows of its box as in ``_forward``.
+    Gaussian over the rows of its box as in ``composite_fwd``.
 
     pair_grad [P, 10]: d/d(mean2d x, y), d/d(conic a, b, c), d/d opacity, d/d features (4) of the
     pair's Gaussian, summed over the tile's pixels in a fixed order.
@@ -431,18 +432,18 @@ def _backward(
         st = _aligned_state(B_SIZE)
         for j in range(bounds[th], bounds[th + 1]):
             t = order[j]
-            x0, x1, y0, y1 = _tile_pixels(t, tiles_x, width, height)
+            x0, x1, y0, y1 = tile_pixels(t, tiles_x, width, height)
             s, e = tile_start[t], tile_start[t + 1]
             for k in range(s, e):
                 for m in range(10):
-                    pair_grad[k, m] = _F(0.0)
+                    pair_grad[k, m] = F32(0.0)
             k_last = -1
             for i in range(NPIX):
                 x = x0 + (i // (NPIX // 2)) * HALF + i % HALF
                 y = y0 + (i // HALF) % TILE
-                st[B_X + i] = _F(x)
-                st[B_Y + i] = _F(y)
-                st[B_B0 + i] = st[B_B1 + i] = st[B_B2 + i] = st[B_B3 + i] = _F(0.0)
+                st[B_X + i] = F32(x)
+                st[B_Y + i] = F32(y)
+                st[B_B0 + i] = st[B_B1 + i] = st[B_B2 + i] = st[B_B3 + i] = F32(0.0)
                 inside = y < y1 and x < x1
                 p = y * width + x if inside else 0
                 # a pixel no gradient reaches (outside tracking's mask, say) adds exact zeros: none walked
@@ -451,17 +452,17 @@ def _backward(
                 )
                 k_pix = last[p] if flows else -1
                 k_last = max(k_last, k_pix)
-                st[B_LK + i] = _F(k_pix - s) if k_pix >= 0 else _F(-1.0)
-                st[B_TC + i] = t_final[p] if inside else _F(1.0)
-                st[B_Q0 + i] = g_acc[p, 0] if inside else _F(0.0)
-                st[B_Q1 + i] = g_acc[p, 1] if inside else _F(0.0)
-                st[B_Q2 + i] = g_acc[p, 2] if inside else _F(0.0)
-                st[B_Q3 + i] = g_acc[p, 3] if inside else _F(0.0)
-                st[B_QT + i] = g_t[p] * t_final[p] if inside else _F(0.0)
+                st[B_LK + i] = F32(k_pix - s) if k_pix >= 0 else F32(-1.0)
+                st[B_TC + i] = t_final[p] if inside else F32(1.0)
+                st[B_Q0 + i] = g_acc[p, 0] if inside else F32(0.0)
+                st[B_Q1 + i] = g_acc[p, 1] if inside else F32(0.0)
+                st[B_Q2 + i] = g_acc[p, 2] if inside else F32(0.0)
+                st[B_Q3 + i] = g_acc[p, 3] if inside else F32(0.0)
+                st[B_QT + i] = g_t[p] * t_final[p] if inside else F32(0.0)
             for k in range(k_last, s - 1, -1):
                 g = gid[k]
                 mx, my = gp[g, G_MX], gp[g, G_MY]
-                bx0, bx1, by0, by1 = _box(mx, my, gp[g, G_EX], gp[g, G_EY], x0, x1, y0, y1)
+                bx0, bx1, by0, by1 = pixel_box(mx, my, gp[g, G_EX], gp[g, G_EY], x0, x1, y0, y1)
                 if by1 <= by0:
                     continue
                 a, b, c, o = gp[g, G_A], gp[g, G_B], gp[g, G_C], gp[g, G_O]
@@ -475,8 +476,8 @@ def _backward(
                         st,
                         lo,
                         hi,
-                        _F(bx0),
-                        _F(bx1),
+                        F32(bx0),
+                        F32(bx1),
                         mx,
                         my,
                         a,
@@ -488,14 +489,14 @@ def _backward(
                         gp[g, G_F0 + 1],
                         gp[g, G_F0 + 2],
                         gp[g, G_F0 + 3],
-                        _F(k - s),
+                        F32(k - s),
                     )
                     for m in range(10):
                         pair_grad[k, m] += gr[m]
 
 
 @njit(cache=True)
-def _reduce_sum(gid, pair_vals, out):  # pragma: no cover - compiled
+def reduce_sum(gid, pair_vals, out):  # pragma: no cover - compiled
     """out[gid[k]] += pair_vals[k] in list order: one fixed summation order, whatever the threads."""
     for k in range(gid.shape[0]):
         g = gid[k]
@@ -504,7 +505,7 @@ def _reduce_sum(gid, pair_vals, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _reduce_stats(gid, pair_cov, pair_hits, pair_maxw, coverage, hit_count, max_weight):  # pragma: no cover
+def reduce_stats(gid, pair_cov, pair_hits, pair_maxw, coverage, hit_count, max_weight):  # pragma: no cover
     for k in range(gid.shape[0]):
         g = gid[k]
         coverage[g] += pair_cov[k]

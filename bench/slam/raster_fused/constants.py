@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 
 TILE = 16
-_F = np.float32
-ALPHA_MIN = _F(1.0 / 255.0)
-ALPHA_MAX = _F(0.99)
-T_MIN = _F(1e-4)
+F32 = np.float32
+ALPHA_MIN = F32(1.0 / 255.0)
+ALPHA_MAX = F32(0.99)
+T_MIN = F32(1e-4)
 # the pruning statistic C_i sums o exp(power) over whole tiles; terms below exp(-20) of the peak are
 # dropped, which changes no float32 sum
-COVERAGE_POWER_MIN = _F(-20.0)
+COVERAGE_POWER_MIN = F32(-20.0)
 N_FEAT = 4  # r, g, b, depth

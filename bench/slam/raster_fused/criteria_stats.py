@@ -3,16 +3,16 @@
 One compiled pass per tile over its depth-sorted list, with the forward's rules (alpha =
 min(0.99, o exp(power)), pairs under 1/255 skipped, the pixel done where T would fall under 1e-4 and
 that Gaussian not counted). It runs only when a strategy reads one of these statistics, apart from
-the vectorised compositing (``compositing._forward``), which it leaves as it is.
+the vectorised compositing (``compositing.composite_fwd``), which it leaves as it is.
 
 Each Gaussian of the list, front to back, updates the pixels of its 1/255 box (the half-extents
-``compositing._pack`` computes), whose transmittance, best contributor and colour sum the tile keeps
+``compositing.pack`` computes), whose transmittance, best contributor and colour sum the tile keeps
 per pixel, as the forward does. A loop per pixel over the tile's whole list, the first version, cost
 a criterion that scores every keyframe held most of a long drive's time, mispredicting a branch for
 each pair that misses the pixel. Per pair and per pixel the additions come in the same order as
 there (pixels row by row, Gaussians front to back), so the sums are the same bit for bit.
 
-Per pair it writes (then ``_reduce_sum`` sums over pairs in list order, so the result does not
+Per pair it writes (then ``reduce_sum`` sums over pairs in list order, so the result does not
 depend on the threads): sum of alpha T and of o T over the tile's pixels (T before the Gaussian),
 the pixels where the Gaussian has the largest alpha T (front-most on ties) and the largest
 alpha T_after = alpha T (1 - alpha) (EfficientGS's code), and sum of (o dI/dalpha)^2 with I the
@@ -28,9 +28,8 @@ import numpy as np
 import torch
 from numba import njit, prange
 
-from bench.slam.raster_fused import threads as _threading_layer  # noqa: F401 - set before a parallel kernel runs
-from bench.slam.raster_fused.compositing import _KERNEL, LN255, _box, _exp, _reduce_sum, _tile_pixels
-from bench.slam.raster_fused.constants import _F, ALPHA_MAX, ALPHA_MIN, T_MIN
+from bench.slam.raster_fused.compositing import KERNEL_OPTIONS, LN255, exp_f32, pixel_box, reduce_sum, tile_pixels
+from bench.slam.raster_fused.constants import ALPHA_MAX, ALPHA_MIN, F32, T_MIN
 
 # per-pair columns of ``pair``: weight_sum, opacity_t_sum, top1_count, top1_after_count, alpha_grad_sq
 P_W, P_OT, P_TOP, P_TOPA, P_G2 = 0, 1, 2, 3, 4
@@ -41,32 +40,34 @@ N_PAIR = 5
 def _alpha(px, py, m2, conic, opac, g):  # pragma: no cover - compiled
     dx = px - m2[g, 0]
     dy = py - m2[g, 1]
-    power = _F(-0.5) * (conic[g, 0] * dx * dx + conic[g, 2] * dy * dy) - conic[g, 1] * dx * dy
-    raw = opac[g] * _exp(power)
+    power = F32(-0.5) * (conic[g, 0] * dx * dx + conic[g, 2] * dy * dy) - conic[g, 1] * dx * dy
+    raw = opac[g] * exp_f32(power)
     return raw, min(raw, ALPHA_MAX)
 
 
-@njit(parallel=True, **_KERNEL)
+@njit(parallel=True, **KERNEL_OPTIONS)
 def _half_extents(conic, opac, ext):  # pragma: no cover - compiled
-    """ext [V, 2]: the half-extents of each Gaussian's 1/255 box, computed as ``compositing._pack`` does
+    """ext [V, 2]: the half-extents of each Gaussian's 1/255 box, computed as ``compositing.pack`` does
     (-1: an empty box, for a Gaussian that reaches 1/255 nowhere)."""
     for g in prange(conic.shape[0]):
         a, b, c = conic[g, 0], conic[g, 1], conic[g, 2]
         o = opac[g]
         det = a * c - b * b
-        ex = ey = _F(-1.0)
-        if o >= ALPHA_MIN and det > _F(0.0):
-            r2 = _F(2.0) * (LN255 + np.log(o))  # d^T S^-1 d <= r2  <=>  o exp(power) >= 1/255
-            ex = np.sqrt(r2 * c / det) + _F(1e-3)
-            ey = np.sqrt(r2 * a / det) + _F(1e-3)
+        ex = ey = F32(-1.0)
+        if o >= ALPHA_MIN and det > F32(0.0):
+            r2 = F32(2.0) * (LN255 + np.log(o))  # d^T S^-1 d <= r2  <=>  o exp(power) >= 1/255
+            ex = np.sqrt(r2 * c / det) + F32(1e-3)
+            ey = np.sqrt(r2 * a / det) + F32(1e-3)
         ext[g, 0], ext[g, 1] = ex, ey
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
-def _extra(gid, tile_start, m2, conic, opac, ext, csum, width, height, tiles_x, bg_sum, grad, pair):  # pragma: no cover
+def criteria_extra(
+    gid, tile_start, m2, conic, opac, ext, csum, width, height, tiles_x, bg_sum, grad, pair
+):  # pragma: no cover
     n_tiles = tile_start.shape[0] - 1
     for t in prange(n_tiles):
-        x0, x1, y0, y1 = _tile_pixels(t, tiles_x, width, height)
+        x0, x1, y0, y1 = tile_pixels(t, tiles_x, width, height)
         s, e = tile_start[t], tile_start[t + 1]
         tw = x1 - x0
         n_px = tw * (y1 - y0)
@@ -86,17 +87,17 @@ def _extra(gid, tile_start, m2, conic, opac, ext, csum, width, height, tiles_x, 
             done[:] = False
             for k in range(s, e):
                 g = gid[k]
-                bx0, bx1, by0, by1 = _box(m2[g, 0], m2[g, 1], ext[g, 0], ext[g, 1], x0, x1, y0, y1)
+                bx0, bx1, by0, by1 = pixel_box(m2[g, 0], m2[g, 1], ext[g, 0], ext[g, 1], x0, x1, y0, y1)
                 for y in range(by0, by1):
                     for x in range(bx0, bx1):
                         p = (y - y0) * tw + (x - x0)
                         if done[p]:
                             continue
-                        raw, alpha = _alpha(_F(x), _F(y), m2, conic, opac, g)
+                        raw, alpha = _alpha(F32(x), F32(y), m2, conic, opac, g)
                         if raw < ALPHA_MIN:
                             continue
                         T = tr[p]
-                        test_t = T * (_F(1.0) - alpha)
+                        test_t = T * (F32(1.0) - alpha)
                         if test_t < T_MIN:
                             done[p] = True
                             continue
@@ -113,14 +114,14 @@ def _extra(gid, tile_start, m2, conic, opac, ext, csum, width, height, tiles_x, 
                             col[p] += w * csum[g]
                         else:
                             front[p] += alpha * T * csum[g]
-                            inv = _F(1.0) / (_F(1.0) - alpha)
+                            inv = F32(1.0) / (F32(1.0) - alpha)
                             v = opac[g] * (T * csum[g] - (col[p] - front[p]) * inv - trans[p] * bg_sum * inv)
                             pair[k, P_G2] += v * v
         for p in range(n_px):
             if best_k[p] >= 0:
-                pair[best_k[p], P_TOP] += _F(1.0)
+                pair[best_k[p], P_TOP] += F32(1.0)
             if best_ka[p] >= 0:
-                pair[best_ka[p], P_TOPA] += _F(1.0)
+                pair[best_ka[p], P_TOPA] += F32(1.0)
 
 
 def extra_stats(
@@ -147,6 +148,6 @@ def extra_stats(
     pair = torch.zeros(gid.shape[0], N_PAIR, dtype=torch.float32)
     out = torch.zeros(m2.shape[0], N_PAIR, dtype=torch.float32)
     args = (tiles_x, np.float32(bg_sum), grad, pair.numpy())
-    _extra(gid.numpy(), tile_start.numpy(), m2, co, op, ext, cs, width, height, *args)
-    _reduce_sum(gid.numpy(), pair.numpy(), out.numpy())
+    criteria_extra(gid.numpy(), tile_start.numpy(), m2, co, op, ext, cs, width, height, *args)
+    reduce_sum(gid.numpy(), pair.numpy(), out.numpy())
     return out

@@ -8,16 +8,24 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from bench.slam.raster_fused.binning import _bin_pairs, _depth_order, _in_view
-from bench.slam.raster_fused.compositing import _backward, _forward, _pack, _reduce_stats, _reduce_sum, _schedule
-from bench.slam.raster_fused.criteria_stats import _extra
-from bench.slam.raster_fused.projection import _project_bwd, _project_fwd, _sum_rows
+from bench.slam.raster_fused.binning import bin_pairs_kernel, depth_order, in_view_kernel
+from bench.slam.raster_fused.compositing import (
+    composite_bwd,
+    composite_fwd,
+    pack,
+    reduce_stats,
+    reduce_sum,
+    tile_schedule,
+)
+from bench.slam.raster_fused.criteria_stats import criteria_extra
+from bench.slam.raster_fused.projection import project_bwd, project_fwd, sum_rows
+from bench.slam.raster_fused.threads import use_threading_layer
 
 _COMPILING_ENV = "POCKETBENCH_COMPILING_KERNELS"
 _cache_checked = False
 
 
-def _load_from_cache() -> None:
+def load_from_cache() -> None:
     """Compile the kernels in a child process when numba's cache lacks them, so that this process
     loads them from the cache like every later one.
 
@@ -27,24 +35,25 @@ def _load_from_cache() -> None:
     code it does. Where the cache cannot be written (or numba's internals differ), the kernels
     compile here as before."""
     global _cache_checked
+    use_threading_layer()  # before numba compiles or starts a thread, here or in the child below
     if _cache_checked or os.environ.get(_COMPILING_ENV):
         return
     _cache_checked = True
     try:
         kernels: tuple[Any, ...] = (  # numba dispatchers; their cache internals are untyped
-            _project_fwd,
-            _project_bwd,
-            _sum_rows,
-            _in_view,
-            _depth_order,
-            _bin_pairs,
-            _pack,
-            _schedule,
-            _forward,
-            _backward,
-            _reduce_sum,
-            _reduce_stats,
-            _extra,
+            project_fwd,
+            project_bwd,
+            sum_rows,
+            in_view_kernel,
+            depth_order,
+            bin_pairs_kernel,
+            pack,
+            tile_schedule,
+            composite_fwd,
+            composite_bwd,
+            reduce_sum,
+            reduce_stats,
+            criteria_extra,
         )
         if all(k._cache._cache_file._load_index() for k in kernels):
             return

@@ -7,7 +7,7 @@ from the ``ConfigStore`` (``schema/dataset/NAME``, ``schema/strategy/NAME``) and
 so a mistyped key or a wrongly typed value fails at composition, not deep inside a run. Ranges and
 choices live on the same fields (``bench.config.settings.setting``) and are checked as each dataclass is built.
 Dataset schemas are found through the dataset registry (``bench.datasets.schema``), not imported here.
-``bench.cli.validate.validate`` converts the composed config once (``to_run_config``) and hands dataclasses down.
+``bench.run.validate.validate`` converts the composed config once (``to_run_config``) and hands dataclasses down.
 ``register_configs`` runs when ``bench.cli.entry`` is imported, before Hydra composes anything.
 """
 
@@ -90,7 +90,7 @@ def _increasing(values: list[Any], lo: int) -> bool:
 
 @dataclass
 class VizConfig:
-    """Pictures of what pruning removed (``bench.report.figures.pruned_run``); they cost renders in the SLAM loop."""
+    """Pictures of what pruning removed (``bench.run.figures.pruned_run``); they cost renders in the SLAM loop."""
 
     pruning: bool = False  # pruned_kfNNN.png (+ .npz for reports) at the keyframes below
     every: int = setting(5, "int", lo=1)  # keyframes 5, 10, 15, ... (keyframe 0 has nothing to prune)

@@ -5,6 +5,8 @@ setting cost a whole run, or become a result. The rules themselves live on the t
 (``bench.config.settings.setting`` fields and ``__post_init__`` checks), so this module only composes them:
 the keys no schema has, the one conversion to ``RunConfig`` (which runs every rule), the strategy
 and a given LPIPS checkpoint. It returns what it built, for ``bench.run.lifecycle.run`` to use as it is.
+It sits with the run's config, below both of its callers: the command line (``bench.cli.entry``, before
+Hydra starts) and ``bench.run.lifecycle.run`` (a run called from Python is validated the same way).
 """
 
 from __future__ import annotations
@@ -13,7 +15,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from bench.config.compose import (
+from bench.config.settings import check_rules, plain, unknown_keys
+from bench.errors import BenchError, ConfigError
+from bench.run.checkpoint import CheckpointConfig
+from bench.run.config import (
     EvalConfig,
     MemoryConfig,
     RunConfig,
@@ -22,9 +27,6 @@ from bench.config.compose import (
     dataset_schemas,
     to_run_config,
 )
-from bench.config.settings import check_rules, plain, unknown_keys
-from bench.errors import BenchError, ConfigError
-from bench.run.checkpoint import CheckpointConfig
 from bench.slam.config import SlamConfig
 from bench.slam.strategy import CheckedStrategy, PruneConfig, load_strategy, strategy_class, unknown_params
 

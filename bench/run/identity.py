@@ -14,10 +14,10 @@ from typing import Any
 
 from omegaconf import DictConfig
 
-from bench.config.compose import RunConfig, to_run_config
 from bench.datasets import FrameSequence, canonical_seq
 from bench.errors import BenchError
 from bench.run import provenance
+from bench.run.config import RunConfig, to_run_config
 from bench.run.resume import input_fingerprint, resume_key
 
 # keys that change how a run is shown or stored (or checkpointed), not what it computes
