@@ -17,7 +17,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.cli.entry import compose  # noqa: E402
-from bench.config.compose import to_run_config  # noqa: E402
+from bench.run.config import to_run_config  # noqa: E402
 from bench.run.setup import open_seq  # noqa: E402
 from bench.slam.frontend import relative_motion, to_gray_u8  # noqa: E402
 
