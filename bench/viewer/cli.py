@@ -7,6 +7,7 @@ on stdout, and the page has a dropdown to switch between them; ``--run`` picks t
 
 from __future__ import annotations
 
+import signal
 import time
 from pathlib import Path
 
@@ -81,6 +82,9 @@ def main(argv: list[str] | None = None) -> int:
         viewer = Viewer(slots, host=args.host, port=args.port, keyframe=args.keyframe)
     except BenchError as exc:
         return failed(exc, EXIT_ERROR)
+    # Ctrl-C stops the viewer even where it was started with SIGINT ignored (a command put in the background by a
+    # shell without job control inherits that, and Python then raises no KeyboardInterrupt)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         print(f"serving {', '.join(s.scene.label for s in viewer.slots)} at {viewer.url} (Ctrl-C stops)", flush=True)
         while True:
