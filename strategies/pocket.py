@@ -17,8 +17,10 @@ import torch
 
 from bench.api import TILE_PX, PruneContext, Strategy, StrategyError, check, setting
 from strategies._area import AREA_MODES, area_score
+from strategies.random import chance_score
 
 BUDGET_ROUNDINGS: tuple[str, ...] = ("ceil", "floor")
+RANKS: tuple[str, ...] = ("area", "random")
 TILE_SOURCES: tuple[str, ...] = ("center", "zero")
 
 
@@ -103,6 +105,10 @@ class PocketPruning(Strategy):
     # reads a zero-filled means2D placeholder. There the one occupied tile gets min(N_tar, B_max), so
     # each prune keeps the B_max rendered older Gaussians of largest area. Only for +experiment=released.
     tile_source: str = setting("center", "str", choices=TILE_SOURCES)
+    # what ranks the candidates within a tile: "area" = S_i (the paper); "random" = a uniform draw from the run's
+    # seed and the keyframe index (strategies/random.py), so each tile keeps the same count B_k as with S_i: the
+    # chance baseline for the criterion alone, with the tile budgets held
+    rank: str = setting("area", "str", choices=RANKS)
 
     def __post_init__(self) -> None:
         super().__post_init__()  # each field's own rule
@@ -133,7 +139,10 @@ class PocketPruning(Strategy):
         )
 
     def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
-        score = area_score(ctx.raster, ctx.gaussians.opacities, self.area)  # [N] S_i
+        if self.rank == "random":
+            score = chance_score(ctx)  # [N] iid uniform
+        else:
+            score = area_score(ctx.raster, ctx.gaussians.opacities, self.area)  # [N] S_i
         budget, _ = self.budgets(ctx)
         return keep_top_per_tile(score, self._tiles(ctx), self._candidates(ctx), budget)
 

@@ -16,6 +16,14 @@ import torch
 from bench.api import PruneContext, Strategy, top_k_keep
 
 
+def chance_score(ctx: PruneContext) -> torch.Tensor:
+    """[N] iid uniform scores on ctx's device, drawn from the run's seed and the keyframe index: the top k of
+    any subset of them is a uniform draw of k from that subset."""
+    # one generator per prune call on the CPU, so the draw does not depend on the device or on earlier calls
+    gen = torch.Generator(device="cpu").manual_seed(ctx.seed * 1_000_003 + ctx.keyframe_index)
+    return torch.rand(len(ctx.gaussians), generator=gen).to(ctx.candidates.device)
+
+
 @dataclass
 class RandomPruning(Strategy):
     """Keep N_tar (ctx.n_target) candidates drawn uniformly at random, without replacement."""
@@ -23,8 +31,4 @@ class RandomPruning(Strategy):
     description: ClassVar[str] = "chance baseline: a uniformly random subset of the candidates at the same N_tar"
 
     def after_mapping(self, ctx: PruneContext) -> torch.Tensor:
-        n = len(ctx.gaussians)
-        # one generator per prune call on the CPU, so the draw does not depend on the device or on earlier calls
-        gen = torch.Generator(device="cpu").manual_seed(ctx.seed * 1_000_003 + ctx.keyframe_index)
-        score = torch.rand(n, generator=gen).to(ctx.candidates.device)  # [N] iid uniform: top-k of it is uniform
-        return top_k_keep(score, ctx.candidates, ctx.n_target)
+        return top_k_keep(chance_score(ctx), ctx.candidates, ctx.n_target)

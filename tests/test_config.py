@@ -111,6 +111,5 @@ def test_kitti_tracks_with_the_corners_in_every_preset(preset: str):
     assert (
         to_run_config(compose_cfg("dataset=kitti", f"slam={preset}", "slam.feature_weight=0")).slam.feature_weight == 0
     )
-    assert to_run_config(compose_cfg("dataset=euroc", f"slam={preset}")).slam.feature_weight == (
-        2.0 if preset.startswith("faithful") else 0.0
-    )
+    assert to_run_config(compose_cfg("dataset=euroc", f"slam={preset}")).slam.feature_weight == 0.0
+    assert to_run_config(compose_cfg("dataset=sevenscenes", f"slam={preset}")).slam.feature_weight == 0.0

@@ -67,7 +67,7 @@ def test_a_setting_named_like_target_is_a_run_setting() -> None:
     """prune.n_target_per_mpx holds "_target_" in its name, not as a node: the regime study sets it."""
     from bench.sweep.study import load
 
-    assert any("prune.n_target_per_mpx=166223" in o for o in load("regime")[0].sweeps["regime_7scenes_budget"])
+    assert any("prune.n_target_per_mpx=166223" in o for o in load("regime")[0].sweeps["regime_7scenes_pair"])
 
 
 @pytest.mark.parametrize("case", sorted(STUDIES))

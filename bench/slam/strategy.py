@@ -119,6 +119,10 @@ class PruneConfig:
     # or the absolute N_tar per megapixel of the run's images, so that the budget scales with the resolution:
     # N_tar = round(n_target_per_mpx x H x W / 1e6) (docs/presets.md gives the released budgets per megapixel)
     n_target_per_mpx: float | None = setting(None, "float", lo=0.0, nullable=True)
+    # the absolute N_tar's floor: never fewer than this many Gaussians per pixel of one image. Why: a budget under
+    # one view's seeds leaves the next frame's silhouette too thin to track (conf/study/regime.yaml); 1.0 = one
+    # view seeded at every pixel, the rule slam.densify.cap_floor_per_px fixed for the memory cap (issue 58)
+    n_target_floor_per_px: float | None = setting(None, "float", lo=0.0, lo_open=True, nullable=True)
     # keyframe: after each keyframe's mapping; frame: also after each tracked frame
     every: str = setting("keyframe", "str", choices=PRUNE_EVERY)
     # g_i, the per-Gaussian tracking gradient that pocket's tile budgets and gradient pruning read:
@@ -139,15 +143,25 @@ class PruneConfig:
             raise ConfigError(
                 f"prune.{given[0]}: expected it only with prune.target=absolute, found prune.target=ratio"
             )
+        if self.target == "ratio" and self.n_target_floor_per_px is not None:
+            raise ConfigError(
+                "prune.n_target_floor_per_px: expected it only with prune.target=absolute, found prune.target=ratio"
+            )
 
     def target_count(self, image_hw: tuple[int, int]) -> int | None:
         """The absolute N_tar for PruneContext at images of ``image_hw`` (H, W), or None when N_tar follows the
         keep ratio."""
         if self.target != "absolute":
             return None
+        n_pixels = image_hw[0] * image_hw[1]
         if self.n_target_per_mpx is not None:
-            return int(round(self.n_target_per_mpx * image_hw[0] * image_hw[1] / 1e6))
-        return self.n_target
+            count = int(round(self.n_target_per_mpx * n_pixels / 1e6))
+        else:
+            assert self.n_target is not None  # __post_init__: exactly one of the two with target=absolute
+            count = self.n_target
+        if self.n_target_floor_per_px is not None:
+            count = max(count, int(self.n_target_floor_per_px * n_pixels))
+        return count
 
 
 @dataclass

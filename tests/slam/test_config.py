@@ -40,6 +40,11 @@ def test_unknown_setting_lists_the_known_ones():
             "expected exactly one of them .* found n_target and n_target_per_mpx",
         ),
         ({"n_target_per_mpx": 1e5}, "prune.n_target_per_mpx: expected it only with prune.target=absolute"),
+        ({"n_target_floor_per_px": 1.0}, "prune.n_target_floor_per_px: expected it only with prune.target=absolute"),
+        (
+            {"target": "absolute", "n_target": 5, "n_target_floor_per_px": 0.0},
+            r"prune.n_target_floor_per_px: expected a number > 0",
+        ),
         ({"every": "second"}, "prune.every: expected one of keyframe, frame, found 'second'"),
         ({"grad_source": "x"}, "prune.grad_source: expected one of params_last, means2d_all, found 'x'"),
         ({"keep_ratio": 1.5}, r"prune.keep_ratio: expected a number in \(0, 1\], found 1.5"),

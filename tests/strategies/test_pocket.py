@@ -91,6 +91,24 @@ def test_tile_membership_comes_from_the_real_projection(scene):
     assert [kept_in(keep, groups[t]) for t in placed] == [6, 5, 15]
 
 
+def test_rank_random_keeps_the_tile_budgets_with_a_seeded_draw(scene):
+    """strategy.params.rank=random: the same count per tile as the area rank, a different and seeded choice."""
+    import dataclasses
+
+    placed = {(3, 0): 2.0, (0, 2): 1.0, (2, 1): 5.0}
+    groups = {t: scene.add_grid(*t, 20, grad=g) for t, g in placed.items()}
+    ctx = scene.build()
+    by_area = PocketPruning().after_mapping(ctx)
+    chance = PocketPruning(rank="random")
+    keep = chance.after_mapping(ctx)
+    assert [kept_in(keep, groups[t]) for t in placed] == [kept_in(by_area, groups[t]) for t in placed] == [6, 5, 15]
+    assert not torch.equal(keep, by_area)
+    assert torch.equal(keep, chance.after_mapping(ctx))  # same seed and keyframe: the same subset
+    assert not torch.equal(keep, chance.after_mapping(dataclasses.replace(ctx, seed=ctx.seed + 1)))
+    with pytest.raises(ConfigError, match="rank: expected one of area, random, found 'opacity'"):
+        load_strategy("pocket", {"rank": "opacity"})
+
+
 def test_new_gaussians_are_exempt_and_do_not_shape_budgets(scene):
     old0 = scene.add_grid(0, 0, 10, grad=1.0)
     new0 = [scene.add(3 + i, 13, grad=100.0, opacity=0.99, sigma_px=2.0, new=True) for i in range(8)]

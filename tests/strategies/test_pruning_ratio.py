@@ -98,6 +98,17 @@ def test_a_budget_per_megapixel_scales_with_the_image():
     assert PruneConfig().target_count((480, 752)) is None  # the ratio target
 
 
+def test_the_budget_floor_is_one_view_per_pixel_where_the_budget_is_lower():
+    from bench.slam.strategy import PruneConfig
+
+    floored = PruneConfig(target="absolute", n_target_per_mpx=166_223, n_target_floor_per_px=1.0)
+    assert floored.target_count((120, 160)) == 160 * 120  # the budget (3,191) under one view's pixels
+    assert floored.target_count((480, 752)) == 752 * 480  # and still at full size: 60,000 < 360,960
+    assert PruneConfig(target="absolute", n_target=500_000, n_target_floor_per_px=1.0).target_count((480, 752)) == (
+        500_000  # a budget above the floor is the budget
+    )
+
+
 def test_random_keeps_n_target_candidates_drawn_by_the_seed(scene):
     groups = mixed_scene(scene)
     strategy, ctx = prepared(scene, "random", 0.4)
