@@ -57,6 +57,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "history, and stamp every table and the README with how many (refused without it)",
     )
     parser.add_argument("--paper", action="store_true", default=None, help="add the paper's figures as '(paper)' rows")
+    parser.add_argument(
+        "--regime",
+        action="store_true",
+        default=None,
+        help="add regime.md and the regime figures: each pruned run's peak against the baseline's of its cell, "
+        "by keyframes held and growth density, with the paper's run on the same axes",
+    )
     parser.add_argument("--baseline", default="none", help="strategy the relative columns compare with")
     parser.add_argument("--format", default="png", help="figure formats, comma-separated: png,pdf,svg (default png)")
     parser.add_argument("--dpi", type=int, default=DPI, help=f"raster resolution of png figures (default {DPI})")
@@ -91,6 +98,7 @@ def study_inputs(args: argparse.Namespace) -> None:
     args.dirs = [*args.dirs, *found]
     args.out = args.out or Path(study.report.get("out", f"reports/{study.name}"))
     args.paper = bool(study.report.get("paper", False)) if args.paper is None else args.paper
+    args.regime = bool(study.report.get("regime", False)) if args.regime is None else args.regime
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -142,6 +150,7 @@ def _main(args: argparse.Namespace) -> int:
             formats=formats,
             dpi=args.dpi,
             labels=load_labels(args.labels),
+            regime=bool(args.regime),
         )
         if args.study:
             result.files += [f for f in provenance_check.stamp_report(result.out, stamp) if f not in result.files]

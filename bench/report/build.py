@@ -15,9 +15,10 @@ import yaml
 from bench.errors import ReportError
 from bench.names import use_method_names
 from bench.report.collect import collect, finished_run_tables, grouped_run_tables, stack_run_tables
-from bench.report.figures.make import make_plots
+from bench.report.figures.make import make_plots, regime_plots
 from bench.report.figures.output import DPI
 from bench.report.figures.runs import read_keyframes
+from bench.report.growth import regime_markdown
 from bench.report.paper import load_paper_tables
 from bench.report.regime import put_regime
 from bench.report.render import tables_markdown, to_latex
@@ -83,16 +84,18 @@ def make_report(
     formats: tuple[str, ...] = ("png",),
     dpi: int = DPI,
     labels: Labels | None = None,
+    regime: bool = False,
 ) -> ReportResult:
     """Collect every run under ``run_dirs`` (sweep or run dirs, searched recursively) and write
     ``runs.csv``, ``accuracy_<dataset>.tex``, ``performance_<dataset>.tex``, ``tables.md``,
     ``stats.csv`` (seed statistics of every table cell) and the figures (each in ``formats``, at
-    ``dpi``) into ``out``. Raises ``ReportError`` when no
+    ``dpi``) into ``out``; with ``regime``, also ``regime.md`` and the regime figures (``bench.report.growth``).
+    Raises ``ReportError`` when no
     usable run is found. ``out`` is replaced as a unit (``bench.report.swap``): a report stopped part-way
     leaves it as it was."""
     labels = labels or Labels()
     with use_method_names(labels.methods), built_beside(Path(out), run_dirs) as work:
-        result = _make_report(run_dirs, work, paper, baseline, formats, dpi, labels.metrics)
+        result = _make_report(run_dirs, work, paper, baseline, formats, dpi, labels.metrics, regime)
     result.out, result.files = Path(out), [Path(out) / f.relative_to(work) for f in result.files]
     return result
 
@@ -105,6 +108,7 @@ def _make_report(
     formats: tuple[str, ...],
     dpi: int,
     metrics: tuple[str, ...] | None,
+    regime: bool = False,
 ) -> ReportResult:
     if not baseline:
         raise ReportError("expected a baseline strategy name, found an empty string")
@@ -149,6 +153,10 @@ def _make_report(
     files += make_plots(
         runs, out, warnings.append, formats, dpi, keyframes=keyframes, milestones=milestones, long_drives=long_drives
     )
+    if regime:  # the regime study's table and figures (bench/report/growth.py)
+        files.append(out / "regime.md")
+        files[-1].write_text(regime_markdown(runs, baseline), encoding="utf-8")
+        files += regime_plots(runs, keyframes, out, baseline, formats, dpi)
     return ReportResult(out, runs, tables, files, collection.skipped, warnings)
 
 

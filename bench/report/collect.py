@@ -208,7 +208,17 @@ def collect(roots: Iterable[Path]) -> Collection:
         if present and all(isinstance(v, int) and not isinstance(v, bool) for v in present):
             runs[column] = runs[column].astype("Int64")
     runs["seed"] = runs["seed"].astype("Int64")
-    keys = ["strategy", "dataset", "seq", "seed", "keep_ratio", "slam_preset", "memory_policy", "eval_protocol"]
+    keys = [
+        "strategy",
+        "dataset",
+        "seq",
+        "seed",
+        "keep_ratio",
+        "slam_preset",
+        "memory_policy",
+        "pruning",
+        "eval_protocol",
+    ]
     dupes = runs[runs.duplicated(subset=keys, keep=False)]
     for key, group in dupes.groupby(keys, dropna=False, sort=True):
         warnings.append(

@@ -8,6 +8,7 @@ say which setting produced it, so every report carries them: as columns of ``run
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +23,8 @@ SETTING_KEYS: tuple[str, ...] = (
     "slam.mapping_iters",
     "slam.mapping_fit_psnr_db", "slam.mapping_schedule", "slam.mapping_draw", "slam.kf_every", "slam.refine_iters",
     "slam.refine_lr_final", "slam.densify_silhouette", "slam.densify_stride", "slam.init_opacity",
-    "prune.target", "prune.n_target", "prune.n_target_per_mpx", "prune.every", "prune.grad_source",
+    "prune.target", "prune.n_target", "prune.n_target_per_mpx", "prune.n_target_floor_per_px", "prune.every",
+    "prune.grad_source",
     "dataset.downscale", "dataset.width", "dataset.height", "dataset.n_frames", "dataset.first", "dataset.last",
     "dataset.stride", "dataset.route", "dataset.route_file",
     "threads", "determinism", "eval.protocol",
@@ -56,7 +58,6 @@ def policy_label(slam: Any) -> str:
     """The memory policy a run's ``slam`` config names: every key of ``POLICY_SECTIONS`` whose value
     differs from ``SlamConfig``'s default, as ``section.key=value`` joined by ", "; "" for today's
     policy (every key at its default, or a config from before the sections existed)."""
-    import dataclasses
 
     from bench.slam.config import SlamConfig
 
@@ -75,9 +76,56 @@ def policy_label(slam: Any) -> str:
     return ", ".join(changed)
 
 
+def _short(value: Any) -> str:
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def _section(node: dict[str, Any], key: str) -> dict[str, Any]:
+    value = node.get(key)
+    return value if isinstance(value, dict) else {}
+
+
+def pruning_label(cfg: dict[str, Any]) -> str:
+    """How a run pruned where it differs from the studies' usual schedule (a keep ratio of the candidates after
+    each keyframe, the strategy's default parameters): an absolute N_tar (``N_tar 80000``, ``N_tar 166223/Mpx``,
+    ``floor 1/px``), ``prune.every`` and ``prune.grad_source`` where set otherwise, and each strategy parameter that
+    differs from its default (``rank=random``), joined by ", "; "" for the usual schedule, for ``none`` (which
+    prunes nothing whatever ``prune`` says), and for a strategy that is no longer installed (its defaults are
+    unknown; its parameters are then named in full).
+
+    Why: two runs of one strategy at two budgets, or with two parameter sets, are two table rows, never seeds of
+    one; the keep ratio has its own column and is not repeated here."""
+    from bench.slam.strategy import PruneConfig, StrategyError, strategy_class
+
+    strategy = _section(cfg, "strategy")
+    name = str(strategy.get("name") or "")
+    if name in ("", "none"):
+        return ""
+    prune = _section(cfg, "prune")
+    parts = []
+    if prune.get("target") == "absolute":
+        if prune.get("n_target") is not None:
+            parts.append(f"N_tar {_short(prune['n_target'])}")
+        if prune.get("n_target_per_mpx") is not None:
+            parts.append(f"N_tar {_short(prune['n_target_per_mpx'])}/Mpx")
+        if prune.get("n_target_floor_per_px") is not None:
+            parts.append(f"floor {_short(prune['n_target_floor_per_px'])}/px")
+    usual = PruneConfig()
+    for key in ("every", "grad_source"):
+        if key in prune and prune[key] != getattr(usual, key):
+            parts.append(f"{key}={_short(prune[key])}")
+    params = _section(strategy, "params")
+    try:
+        defaults = dataclasses.asdict(strategy_class(name)())
+    except (StrategyError, TypeError):
+        defaults = {}
+    parts += [f"{k}={_short(v)}" for k, v in params.items() if k not in defaults or defaults[k] != v]
+    return ", ".join(parts)
+
+
 def read_settings(run_dir: Path, device: str | None) -> dict[str, Any]:
     """The ``SETTING_KEYS`` of one run (None where its config lacks a key or has no config), and its
-    ``memory_policy`` (``policy_label``).
+    ``memory_policy`` (``policy_label``) and ``pruning`` (``pruning_label``).
 
     ``slam.raster_backend=auto`` is written as the backend it chose on the run's device, because
     ``auto`` means different kernels on CPU and CUDA.
@@ -87,9 +135,10 @@ def read_settings(run_dir: Path, device: str | None) -> dict[str, Any]:
     except (OSError, yaml.YAMLError):
         cfg = None
     if not isinstance(cfg, dict):
-        return {**dict.fromkeys(SETTING_KEYS), "memory_policy": None}
+        return {**dict.fromkeys(SETTING_KEYS), "memory_policy": None, "pruning": None}
     row = {key: _lookup(cfg, key) for key in SETTING_KEYS}
     row["memory_policy"] = policy_label(cfg.get("slam"))
+    row["pruning"] = pruning_label(cfg)
     if row["slam.raster_backend"] == "auto" and device:
         chosen = "fused" if str(device).startswith("cpu") else "torch"
         row["slam.raster_backend"] = f"auto ({chosen})"
@@ -124,7 +173,7 @@ def settings_markdown(runs: pd.DataFrame) -> str:
 
 # what one table cell pools (a table holds one eval.protocol: bench.report.tables.build_tables)
 POOL_KEYS: tuple[str, ...] = (
-    "dataset", "seq", "strategy", "keep_ratio", "slam_preset", "memory_policy", "eval_protocol",
+    "dataset", "seq", "strategy", "keep_ratio", "slam_preset", "memory_policy", "pruning", "eval_protocol",
 )  # fmt: skip
 
 

@@ -104,6 +104,7 @@ class Variant:
     label: str
     slam_preset: str = "default"
     memory_policy: str = ""  # bench.report.settings.policy_label; "" = today's keyframe store, densification, residency
+    pruning: str = ""  # bench.report.settings.pruning_label; "" = the keep ratio and the strategy's default parameters
 
 
 @dataclass(frozen=True)
@@ -160,32 +161,42 @@ def _policies(runs: pd.DataFrame) -> pd.Series:
     return runs["memory_policy"].map(lambda v: "" if is_missing(v) else str(v))
 
 
+def _prunings(runs: pd.DataFrame) -> pd.Series:
+    """Each run's pruning label; "" for runs (or stored tables) from before the column existed."""
+    if "pruning" not in runs:
+        return pd.Series("", index=runs.index)
+    return runs["pruning"].map(lambda v: "" if is_missing(v) else str(v))
+
+
 def variants(runs: pd.DataFrame) -> list[Variant]:
     """Measured rows in paper order; the keep ratio is named only where a strategy ran several,
-    the backend preset only where the runs hold several, the memory policy wherever it is not today's."""
-    presets, policies = _presets(runs), _policies(runs)
+    the backend preset only where the runs hold several, the memory policy wherever it is not today's, the
+    pruning schedule (an absolute target, other strategy parameters) wherever it is not the usual one."""
+    presets, policies, prunings = _presets(runs), _policies(runs), _prunings(runs)
     found = {
-        (s, _keep(k), str(p), m)
-        for s, k, p, m in zip(runs["strategy"], runs["keep_ratio"], presets, policies, strict=True)
+        (s, _keep(k), str(p), m, g)
+        for s, k, p, m, g in zip(runs["strategy"], runs["keep_ratio"], presets, policies, prunings, strict=True)
     }
     ratios: dict[tuple[str, str, str], int] = {}
-    for strategy, _, preset, policy in found:
+    for strategy, _, preset, policy, _ in found:
         ratios[strategy, preset, policy] = ratios.get((strategy, preset, policy), 0) + 1
-    several_presets = len({p for _, _, p, _ in found}) > 1
+    several_presets = len({p for _, _, p, _, _ in found}) > 1
     out = []
 
-    def order(p: tuple[str, float | None, str, str]) -> tuple:
-        return p[2] != "default", p[2], p[3], strategy_rank(p[0]), -1.0 if p[1] is None else p[1]
+    def order(p: tuple[str, float | None, str, str, str]) -> tuple:
+        return p[2] != "default", p[2], p[3], strategy_rank(p[0]), -1.0 if p[1] is None else p[1], p[4]
 
-    for strategy, keep, preset, policy in sorted(found, key=order):
+    for strategy, keep, preset, policy, pruning in sorted(found, key=order):
         label = method_name(strategy)
-        if ratios[strategy, preset, policy] > 1:
+        if pruning:
+            label += f" ({pruning})"
+        elif ratios[strategy, preset, policy] > 1:
             label += f" (keep {keep:g})" if keep is not None else " (absolute target)"
         if policy:
             label += f" + {policy}"
         if several_presets:
             label += f" [{preset}]"
-        out.append(Variant(strategy, keep, label, preset, policy))
+        out.append(Variant(strategy, keep, label, preset, policy, pruning))
     return out
 
 
@@ -193,7 +204,7 @@ def variant_runs(runs: pd.DataFrame, variant: Variant) -> pd.DataFrame:
     keep = runs["keep_ratio"]
     same_keep = keep.isna() if variant.keep_ratio is None else keep == variant.keep_ratio
     same = (runs["strategy"] == variant.strategy) & same_keep & (_presets(runs) == variant.slam_preset)
-    return runs[same & (_policies(runs) == variant.memory_policy)]
+    return runs[same & (_policies(runs) == variant.memory_policy) & (_prunings(runs) == variant.pruning)]
 
 
 def sequences(runs: pd.DataFrame, dataset: str) -> list[str]:

@@ -24,7 +24,7 @@ class Study:
 
     name: str
     sweeps: dict[str, list[str]]
-    report: dict[str, Any] = field(default_factory=dict)  # out (the folder), paper, baseline, format, dpi, planned
+    report: dict[str, Any] = field(default_factory=dict)  # out (the folder), paper, baseline, format, dpi, planned, regime
 
 
 @dataclass(frozen=True)
@@ -69,7 +69,7 @@ def parse(name: str, node: Mapping[str, Any] | None) -> Study:
 
 # what a study file may hold (conf/study/*.yaml): its sweep dir, a launcher, its sweeps and report options
 FILE_KEYS = ("defaults", "sweep_name", "hydra")
-REPORT_KEYS = ("out", "paper", "baseline", "format", "dpi", "planned")  # planned: committed before its runs
+REPORT_KEYS = ("out", "paper", "baseline", "format", "dpi", "planned", "regime")  # planned: committed before its runs
 LAUNCHER_DEFAULT = "override /hydra/launcher"
 
 

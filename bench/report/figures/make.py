@@ -9,6 +9,7 @@ import pandas as pd
 from bench.names import sequence_sort_key
 from bench.report.figures.density import plot_density
 from bench.report.figures.drift import plot_drift
+from bench.report.figures.growth import plot_ratio_vs_density, plot_ratio_vs_keyframes
 from bench.report.figures.milestones import plot_milestones
 from bench.report.figures.output import DPI, OUTPUT, Warn, check_figure_options
 from bench.report.figures.pareto import plot_pareto
@@ -67,3 +68,25 @@ def _make_plots(runs: pd.DataFrame, out: Path, warn: Warn) -> list[Path]:
         written.append(plot_ratio(ds, dataset, out))
         written.append(plot_pareto(ds, dataset, out))
     return [p for p in written if p is not None]
+
+
+def regime_plots(
+    runs: pd.DataFrame,
+    keyframes: dict[str, pd.DataFrame],
+    out: Path,
+    baseline: str = "none",
+    formats: tuple[str, ...] = ("png",),
+    dpi: int = DPI,
+) -> list[Path]:
+    """The regime study's figures (``bench.report.figures.growth``), in each of ``formats``."""
+    check_figure_options(formats, dpi)
+    previous = dict(OUTPUT)
+    OUTPUT.update(formats=tuple(formats), dpi=int(dpi))
+    try:
+        first = [
+            plot_ratio_vs_keyframes(runs, keyframes, out, baseline),
+            plot_ratio_vs_density(runs, out, baseline),
+        ]
+    finally:
+        OUTPUT.update(previous)
+    return [p.with_suffix(f".{ext}") for p in first if p is not None for ext in formats]
