@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pandas as pd
+from matplotlib.ticker import FuncFormatter
 
 from bench.report.figures.output import save_figure
 from bench.report.growth import keyframe_ratios, paper_density, paper_run, run_table
@@ -39,7 +40,7 @@ def plot_ratio_vs_keyframes(
     table = run_table(runs, baseline)
     strategies = dict(zip(table["label"], table["strategy"], strict=False))
     cells = list(dict.fromkeys(curves["cell"]))
-    fig = new_figure(5.2 * len(cells), 3.6)
+    fig = new_figure(4.2 * len(cells) + 4.8, 3.6)  # the legend's long labels beside the panels
     axes = fig.subplots(1, len(cells), squeeze=False)[0]
     styles = _styles(list(dict.fromkeys(curves["label"])), strategies)
     run = paper_run()["run"]
@@ -47,8 +48,9 @@ def plot_ratio_vs_keyframes(
         for (label, seed), c in curves[curves["cell"] == cell].groupby(["label", "seed"], sort=False):
             colour, ls = styles[label]
             ax.plot(c["n_kf_held"], c["ratio"], color=colour, ls=ls, lw=1.2, alpha=0.9 if seed == 0 else 0.55)
-        ax.plot([run["keyframes"]], [run["peak_pruned_gib"] / run["peak_none_gib"]], "*", ms=11, color=PAPER_COLOUR)
+        ax.plot([run["keyframes"]], [run["peak_pruned_gb"] / run["peak_none_gb"]], "*", ms=11, color=PAPER_COLOUR)
         ax.axhline(1.0, color="black", lw=0.6)
+        ax.set_ylim(0, 1.1)
         ax.set_xlabel("keyframes held")
         ax.set_ylabel(f"peak so far, x {baseline} (same seed)")
         ax.set_title(cell)
@@ -56,7 +58,7 @@ def plot_ratio_vs_keyframes(
     handles = [key(label, colour, ls) for label, (colour, ls) in styles.items()]
     handles.append(key(run["label"], PAPER_COLOUR, "", marker="*"))
     legend_outside(fig, handles)
-    fig_title(fig, "Peak memory against the keyframes held (seed 0 solid, others paler)")
+    fig_title(fig, "Peak so far against the keyframes held (seed 0 solid, others paler)")
     return save_figure(fig, out / "regime_ratio_vs_keyframes.png")
 
 
@@ -72,7 +74,7 @@ def plot_ratio_vs_density(runs: pd.DataFrame, out: Path, baseline: str = "none")
     strategies = dict(zip(table["label"], table["strategy"], strict=False))
     styles = _styles(list(dict.fromkeys(points["label"])), strategies)
     cells = list(dict.fromkeys(points["cell"]))
-    fig = new_figure(6.4, 4.2)
+    fig = new_figure(9.0, 4.2)
     ax = fig.subplots()
     for _, p in points.iterrows():
         colour, _ = styles[p["label"]]
@@ -87,9 +89,11 @@ def plot_ratio_vs_density(runs: pd.DataFrame, out: Path, baseline: str = "none")
             ms=5 + 6 * min(1.0, float(p["num_keyframes"] or 0) / 400),
         )
     run = paper_run()["run"]
-    ax.plot([paper_density(run)], [run["peak_pruned_gib"] / run["peak_none_gib"]], "*", ms=13, color=PAPER_COLOUR)
+    ax.plot([paper_density(run)], [run["peak_pruned_gb"] / run["peak_none_gb"]], "*", ms=13, color=PAPER_COLOUR)
     ax.axhline(1.0, color="black", lw=0.6)
-    ax.set_xscale("log")
+    ax.set_ylim(0, 1.1)
+    ax.set_xlim(0, 1.15 * max([paper_density(run), *density[cells]]))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v / 1000:g}k"))
     ax.set_xlabel(f"Gaussians added per keyframe per Mpx ({baseline}, the cell's mean)")
     ax.set_ylabel(f"peak, x {baseline}")
     apply_fonts(ax)
@@ -97,5 +101,5 @@ def plot_ratio_vs_density(runs: pd.DataFrame, out: Path, baseline: str = "none")
     handles += [key(cell, "black", "", marker=MARKERS[i % len(MARKERS)]) for i, cell in enumerate(cells)]
     handles.append(key(run["label"], PAPER_COLOUR, "", marker="*"))
     legend_outside(fig, handles)
-    fig_title(fig, "Peak ratio against growth density (open: lost; size: keyframes)")
+    fig_title(fig, "Peak ratio against growth density (open: lost; larger: more keyframes)")
     return save_figure(fig, out / "regime_ratio_vs_density.png")
