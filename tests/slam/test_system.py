@@ -182,3 +182,25 @@ def test_checkpoint_state_carries_the_lost_detector(mapped_drive):
     assert len(lost.depth_recent) == 6
     assert back_lost.depth_recent == lost.depth_recent and back_lost.bad_frames == lost.bad_frames
     assert back.tracking.track_log == s.tracking.track_log and back_lost.depth_threshold_m() == lost.depth_threshold_m()
+
+
+def test_the_system_is_made_of_parts_that_hold_what_they_read_not_the_system(seq):
+    """``System`` is no mixin: tracking, mapping and the prune diagnostics are objects of their own, which hold
+    the map, keyframe store, renderer and config they read; the one way back to the system is the prune
+    context mapping asks for at the cap (``Mapping.prune_context``), a bound method passed in."""
+    s = _system(seq)
+    assert System.__mro__ == (System, object)
+    parts = {"renderer": s.renderer, "tracking": s.tracking, "mapping": s.mapping, "diagnostics": s.diagnostics}
+    for name, part in parts.items():
+        held = vars(part)
+        assert not any(value is s for value in held.values()), name
+        assert held.get("map", s.map) is s.map and held.get("keyframes", s.keyframes) is s.keyframes, name
+        assert held.get("renderer", s.renderer) is s.renderer and held.get("cfg", s.cfg) is s.cfg, name
+    back = {
+        (name, key)
+        for name, part in parts.items()
+        for key, v in vars(part).items()
+        if getattr(v, "__self__", None) is s
+    }
+    assert back == {("mapping", "prune_context")}
+    assert s.mapping.diagnostics is s.diagnostics and s.tracking.lost is not None
