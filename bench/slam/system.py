@@ -140,7 +140,8 @@ class System:
     @contextlib.contextmanager
     def whole_map(self) -> Iterator[None]:
         """Within: ``self.map`` is a copy of the whole map, the Gaussians map residency holds on disk
-        included (a milestone scores it); after, the live map is back as it was."""
+        included (a milestone scores it); after, the live map is back as it was. Only ``self.map`` and
+        ``render`` see the copy: the parts hold the live map, and none of them runs within."""
         if self.residency is None or not self.residency.on_disk:
             yield
             return
