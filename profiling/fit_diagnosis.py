@@ -198,7 +198,7 @@ def main() -> None:
                     )
                 )
         wall = time.perf_counter() - t0
-        system.refine(cfg.slam.refine_iters)  # as a run does before it evaluates (0 = none)
+        system.mapping.refine(cfg.slam.refine_iters)  # as a run does before it evaluates (0 = none)
         stats = {"kf": [], "between": []}
         final_kf: dict[int, tuple[float, float]] = {}  # keyframe frame -> final map, its own Gaussians' share
         kf_of_frame = {r[1]: r[0] for r in kf_rows}
