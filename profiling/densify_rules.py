@@ -21,16 +21,17 @@ from bench.cli.entry import compose  # noqa: E402
 from bench.run.config import to_run_config  # noqa: E402
 from bench.run.determinism import repeatable  # noqa: E402
 from bench.run.setup import open_seq  # noqa: E402
+from bench.slam.mapping import Mapping  # noqa: E402
 from bench.slam.strategy import load_strategy  # noqa: E402
 from bench.slam.system import System  # noqa: E402
 
 
-def rule_shares(system: System, depth: torch.Tensor, w2c: torch.Tensor) -> str:
-    """The shares of valid-depth pixels each rule of ``System._densify`` selects at ``w2c``, as one line."""
-    cfg = system.cfg
+def rule_shares(mapper: Mapping, depth: torch.Tensor, w2c: torch.Tensor) -> str:
+    """The shares of valid-depth pixels each rule of ``Mapping.densify`` selects at ``w2c``, as one line."""
+    cfg = mapper.cfg
     valid = depth > 0  # [H, W]
     with torch.no_grad():
-        out = system.render(w2c)
+        out = mapper.renderer.render(mapper.map, w2c)
     err = (out.depth - depth).abs()
     if cfg.densify_err_median == "image":
         med = (err * valid).median()
@@ -44,7 +45,7 @@ def rule_shares(system: System, depth: torch.Tensor, w2c: torch.Tensor) -> str:
         f"depth_thr_m {float(cfg.densify_depth_err_mult * med):.2f}"
     )
     if cfg.densify_color_err > 0:
-        col = ((out.color - system.keyframes[-1].rgb).abs().mean(-1) > cfg.densify_color_err) & valid
+        col = ((out.color - mapper.keyframes[-1].rgb).abs().mean(-1) > cfg.densify_color_err) & valid
         line += f" color_rule {float(col.sum()) / n:.4f}"
     return line
 
@@ -53,9 +54,9 @@ def main(overrides: list[str]) -> None:
     cfg = to_run_config(compose(overrides))
     slam = cfg.slam
     slam.lost_check, slam.lost_min_silhouette_frac = "off", 0.0
-    densify = System._densify
+    densify = Mapping.densify
 
-    def probed(self: System, rgb: torch.Tensor, depth: torch.Tensor, w2c: torch.Tensor, kf_idx: int) -> int:
+    def probed(self: Mapping, rgb: torch.Tensor, depth: torch.Tensor, w2c: torch.Tensor, kf_idx: int) -> int:
         shares = rule_shares(self, depth, w2c) if len(self.map) else "first keyframe"
         added = densify(self, rgb, depth, w2c, kf_idx)
         print(
@@ -64,7 +65,7 @@ def main(overrides: list[str]) -> None:
         )
         return added
 
-    System._densify = probed
+    Mapping.densify = probed  # type: ignore[method-assign]
     with repeatable(cfg.seed, cfg.threads, cfg.determinism, torch.device("cpu")):
         seq = open_seq(cfg)
         system = System(slam, seq.K, seq.height, seq.width, load_strategy("none", None), cfg.prune, torch.device("cpu"))

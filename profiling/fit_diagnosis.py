@@ -172,12 +172,12 @@ def main() -> None:
             if c2w0 is None:
                 raise SystemExit(f"--gt-poses: expected ground-truth poses in {seq.name}, found none")
 
-            def gt_track(index: int, rgb: torch.Tensor, depth: torch.Tensor) -> tuple[torch.Tensor, float]:
+            def gt_track(index: int, rgb: torch.Tensor, depth: torch.Tensor, *_poses) -> tuple[torch.Tensor, float]:
                 c2w = seq[index].gt_c2w
                 assert c2w is not None and c2w0 is not None
                 return (torch.linalg.inv(c2w) @ c2w0).float().to(device), 0.0  # [4, 4] w2c, world = frame 0
 
-            system._track = gt_track  # type: ignore[method-assign]
+            system.tracking.track = gt_track  # type: ignore[method-assign]
         kf_rows = []
         t0 = time.perf_counter()
         for i in range(n):
@@ -198,7 +198,7 @@ def main() -> None:
                     )
                 )
         wall = time.perf_counter() - t0
-        system.refine(cfg.slam.refine_iters)  # as a run does before it evaluates (0 = none)
+        system.mapping.refine(cfg.slam.refine_iters)  # as a run does before it evaluates (0 = none)
         stats = {"kf": [], "between": []}
         final_kf: dict[int, tuple[float, float]] = {}  # keyframe frame -> final map, its own Gaussians' share
         kf_of_frame = {r[1]: r[0] for r in kf_rows}

@@ -41,7 +41,7 @@ def main() -> None:
     gt = [inverse((first @ f.gt_c2w.double()).float()) for f in frames]  # [4, 4] w2c, frame 0 at the origin
     with repeatable(cfg.seed, cfg.threads, cfg.determinism, device):
         s = System(cfg.slam, seq.K, seq.height, seq.width, built.strategy, cfg.prune, device)
-        s._track = lambda idx, rgb, depth, init=None: (gt[idx], 0.0)
+        s.tracking.track = lambda idx, rgb, depth, poses, init=None: (gt[idx], 0.0)
         rgb0, depth0 = s.observe(frames[0])
         has = depth0 > 0
 

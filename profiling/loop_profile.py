@@ -87,18 +87,17 @@ class Profile:
 
     def __init__(self) -> None:
         from bench.run import evaluation as run_mod
-        from bench.slam import raster, raster_fused, system
+        from bench.slam import mapping, raster, raster_fused, renderer, system, tracking
         from bench.slam.raster_fused import autograd as fused_autograd
 
         self.clock = Clock()
         self.phase = "other"
         self.iters: dict[str, int] = defaultdict(int)
         self.parts: dict[str, dict[str, float]] = {}
-        sysc = system.System
         pc = self
 
-        def phased(name, phase):
-            orig = getattr(sysc, name)
+        def phased(owner, name, phase):
+            orig = getattr(owner, name)
 
             def wrapped(self_, *a, **k):
                 prev, pc.phase = pc.phase, phase
@@ -108,16 +107,16 @@ class Profile:
                 finally:
                     pc.phase = prev
 
-            setattr(sysc, name, wrapped)
+            setattr(owner, name, wrapped)
 
-        for name, phase in (
-            ("_track", "tracking"),
-            ("_map", "mapping"),
-            ("_densify", "densification"),
-            ("_prune", "pruning"),
-            ("refine", "refine"),
+        for owner, name, phase in (
+            (tracking.Tracking, "track", "tracking"),
+            (mapping.Mapping, "map_keyframe", "mapping"),
+            (mapping.Mapping, "densify", "densification"),
+            (system.System, "_prune", "pruning"),
+            (mapping.Mapping, "refine", "refine"),
         ):
-            phased(name, phase)
+            phased(owner, name, phase)
         orig_eval = run_mod.evaluate
 
         def evaluate(*a, **k):
@@ -133,14 +132,14 @@ class Profile:
         def lab(part):
             return lambda: f"{pc.phase}:{part}"
 
-        orig_render = sysc.render
+        orig_render = renderer.Renderer.render  # every render of the system goes through it
 
         def render(self_, *a, **k):
             if k.get("training") or pc.phase == "tracking" and torch.is_grad_enabled():
                 pc.iters[pc.phase] += 1
             return orig_render(self_, *a, **k)
 
-        sysc.render = render
+        renderer.Renderer.render = render
         wrap_timed(raster, "_front", self.clock, lab("projection"))
         wrap_timed(raster, "_front_fused", self.clock, lab("projection"))
         wrap_timed(raster_fused, "bin_pairs", self.clock, lab("binning"))
@@ -148,9 +147,8 @@ class Profile:
         wrap_timed(fused_autograd._Composite, "backward", self.clock, lab("raster_bwd"), static=True)
         wrap_timed(fused_autograd._Project, "backward", self.clock, lab("proj_bwd"), static=True)
         wrap_timed(raster, "_render_torch", self.clock, lab("raster_fwd"))
-        for name in ("_tracking_loss", "_depth_l1", "_mapping_loss"):
-            if hasattr(sysc, name):
-                wrap_timed(sysc, name, self.clock, lab("loss"))
+        wrap_timed(tracking.Tracking, "_tracking_loss", self.clock, lab("loss"))
+        wrap_timed(mapping, "depth_l1", self.clock, lab("loss"))  # mapping's depth term, as mapping calls it
         wrap_timed(torch.Tensor, "backward", self.clock, lab("autograd_glue"))
         wrap_timed(torch.optim.Adam, "step", self.clock, lab("adam"))
 

@@ -61,7 +61,7 @@ def main(overrides: list[str], out_csv: Path | None = None, kick_every: int = 25
         for i in range(min(len(seq), cfg.max_frames) if cfg.max_frames else len(seq)):
             frame = seq[i]
             kicked = None
-            depth_threshold = system.lost.depth_threshold_m()  # what this frame is judged against
+            depth_threshold = system.tracking.lost.depth_threshold_m()  # what this frame is judged against
             if i >= 2 and i % kick_every == 0:  # before the real frame: same map, same previous poses
                 kicked = kick_residual(system, frame)
             system.step(frame)
@@ -69,7 +69,7 @@ def main(overrides: list[str], out_csv: Path | None = None, kick_every: int = 25
             gt0 = gt if gt0 is None else gt0
             est_c2w = inverse(system.poses[-1].double()).numpy()
             err = float(np.linalg.norm(est_c2w[:3, 3] - (np.linalg.inv(gt0) @ gt)[:3, 3]))
-            res, sil, dres = system.track_log[-1][1:] if i else (0.0, 1.0, 0.0)
+            res, sil, dres = system.tracking.track_log[-1][1:] if i else (0.0, 1.0, 0.0)
             bad = bad + 1 if res > threshold else 0
             bad_depth = bad_depth + 1 if dres > depth_threshold else 0
             bad_both = bad_both + 1 if res > threshold or dres > depth_threshold else 0
@@ -101,30 +101,31 @@ def main(overrides: list[str], out_csv: Path | None = None, kick_every: int = 25
 def kick_residual(system: System, frame) -> tuple[float, float, float]:
     """(colour residual, how far the tracked pose ends from the unkicked start, depth residual m) after tracking
     ``frame`` from the usual start moved sideways by KICK_M; the system's state is left as it was."""
+    tracking = system.tracking
     state = (
         list(system.poses),
-        list(system.init_source),
-        system._prev_obs,
-        len(system.track_log),
-        system._ransac_rng.bit_generator.state,
+        list(tracking.init_source),
+        tracking.prev_obs,
+        len(tracking.track_log),
+        tracking.ransac_rng.bit_generator.state,
         {k: v.clone() for k, v in system.map.state.items()},
-        list(system.lost.depth_recent),
-        system.lost.bad_frames,
+        list(tracking.lost.depth_recent),
+        tracking.lost.bad_frames,
     )
     rgb, depth = frame.rgb, frame.depth_m
     depth = torch.where((depth > 0) & (depth < system.cfg.max_depth_m), depth, torch.zeros_like(depth))
-    system._gray = None  # the plain constant-velocity start: no front-end to pull it back
-    start = system.initial_pose()
+    tracking.gray = None  # the plain constant-velocity start: no front-end to pull it back
+    start = tracking.initial_pose(system.poses)
     kick = torch.eye(4)
     kick[0, 3] = KICK_M
-    w2c, _ = system._track(frame.index, rgb, depth, init=kick @ start)
+    w2c, _ = tracking.track(frame.index, rgb, depth, system.poses, init=kick @ start)
     moved = float((inverse(w2c)[:3, 3] - inverse(start)[:3, 3]).norm())
-    residual, depth_residual = system.track_log[-1][1], system.track_log[-1][3]
-    system.poses, system.init_source, system._prev_obs = state[0], state[1], state[2]
-    del system.track_log[state[3] :]
-    system._ransac_rng.bit_generator.state = state[4]
+    residual, depth_residual = tracking.track_log[-1][1], tracking.track_log[-1][3]
+    system.poses, tracking.init_source, tracking.prev_obs = state[0], state[1], state[2]
+    del tracking.track_log[state[3] :]
+    tracking.ransac_rng.bit_generator.state = state[4]
     system.map.state.update(state[5])  # the tracking-gradient accumulators the kicked frame added to
-    system.lost.depth_recent, system.lost.bad_frames = state[6], state[7]  # the depth check's baseline and count
+    tracking.lost.depth_recent, tracking.lost.bad_frames = state[6], state[7]  # the depth check's baseline and count
     return residual, moved, depth_residual
 
 

@@ -75,19 +75,19 @@ PARTS = (
 
 
 def build_map(frames: int, threads: int, extra: list[str]) -> tuple[Any, tuple, str]:
-    """A short run at the faithful preset; the system, its last ``_optimize`` call's arguments, and a summary."""
+    """A short run at the faithful preset; its mapping part, its last ``_optimize`` call's arguments, and a summary."""
     from bench.cli.entry import compose
     from bench.run.lifecycle import run
-    from bench.slam import system
+    from bench.slam import mapping
 
     captured: dict[str, Any] = {}
-    orig = system.System._optimize
+    orig = mapping.Mapping._optimize
 
     def optimize(self_, kf_idx, iters, pick, *a, **k):
         captured["call"] = (self_, kf_idx, pick)
         return orig(self_, kf_idx, iters, pick, *a, **k)
 
-    system.System._optimize = optimize  # type: ignore[method-assign]
+    mapping.Mapping._optimize = optimize  # type: ignore[method-assign]
     overrides = [
         "dataset=kitti",
         f"dataset.root={SHARED_KITTI}",
@@ -108,7 +108,7 @@ def build_map(frames: int, threads: int, extra: list[str]) -> tuple[Any, tuple, 
             res = run(cfg, Path(tmp) / "run")
             wall_s = time.perf_counter() - t0
     finally:
-        system.System._optimize = orig  # type: ignore[method-assign]
+        mapping.Mapping._optimize = orig  # type: ignore[method-assign]
     if "call" not in captured:
         sys.exit(f"expected the run to map at least one keyframe, found none (python -m bench {' '.join(overrides)})")
     m = res.metrics
@@ -120,7 +120,7 @@ def build_map(frames: int, threads: int, extra: list[str]) -> tuple[Any, tuple, 
     return captured["call"], head
 
 
-def pair_counts(sys_: Any, pick: Any, n_views: int) -> tuple[float, float, int, int]:
+def pair_counts(mapper: Any, pick: Any, n_views: int) -> tuple[float, float, int, int]:
     """(list entries per tile, contributing pairs per pixel, Gaussians in view, Gaussians), averaged
     over ``n_views`` picks of the window (stats renders, no gradient)."""
     from bench.slam import raster_fused
@@ -138,21 +138,22 @@ def pair_counts(sys_: Any, pick: Any, n_views: int) -> tuple[float, float, int, 
     try:
         with torch.no_grad():
             for it in range(n_views):
-                out = sys_.render(pick(it).w2c, stats=True)
+                out = mapper.renderer.render(mapper.map, pick(it).w2c, stats=True)
                 hits.append(int(out.hit_count.sum()))
                 in_view.append(int((out.radius_px > 0).sum()))
     finally:
         raster_fused.bin_pairs = orig
-    px = sys_.W * sys_.H
-    tiles = -(-sys_.W // TILE) * -(-sys_.H // TILE)
-    return statistics.mean(listed) / tiles, statistics.mean(hits) / px, int(statistics.mean(in_view)), len(sys_.map)
+    W, H = mapper.renderer.W, mapper.renderer.H
+    tiles = -(-W // TILE) * -(-H // TILE)
+    per_px = statistics.mean(hits) / (W * H)
+    return statistics.mean(listed) / tiles, per_px, int(statistics.mean(in_view)), len(mapper.map)
 
 
 class Timers:
     """The parts of an iteration patched with exclusive timers; ``undo`` restores every function."""
 
     def __init__(self, clock: Clock) -> None:
-        from bench.slam import mapping, raster, raster_fused, system
+        from bench.slam import mapping, raster, raster_fused
         from bench.slam.raster_fused import autograd as fa
 
         self.undo: list[tuple[Any, str, Any]] = []
@@ -171,7 +172,7 @@ class Timers:
         timed(fa, "composite_bwd", "bwd_kernel")
         timed(fa._Project, "backward", "proj_bwd", static=True)
         timed(mapping, "dssim", "loss_ssim")
-        timed(system.System, "_depth_l1", "loss_depth")
+        timed(mapping, "depth_l1", "loss_depth")  # mapping's depth term, as mapping calls it
         timed(torch.Tensor, "backward", "autograd_glue")
         timed(torch.optim.Adam, "step", "adam")
         from bench.slam import keyframes
@@ -190,7 +191,7 @@ def profile(call: tuple, iters: int, blocks: int, threads: int) -> str:
     """The iterations timed as the run ran them: on its thread count, with denormals flushed as the
     SLAM system sets them (the run's end restores both, and Adam's moments and small gradients are
     slow as denormals)."""
-    sys_, kf_idx, pick = call
+    mapper, kf_idx, pick = call
     torch.set_num_threads(threads)
     torch.set_flush_denormal(True)
     clock = Clock()
@@ -203,7 +204,7 @@ def profile(call: tuple, iters: int, blocks: int, threads: int) -> str:
             clock.ms.clear()
             clock.stack.clear()
             with clock.part("python"):
-                sys_._optimize(kf_idx, iters, pick)
+                mapper._optimize(kf_idx, iters, pick)
             total = sum(clock.ms.values())
             totals_ms.append(total / iters)
             for p in PARTS:
@@ -250,12 +251,12 @@ def main() -> None:
     warm_up()
     call, head = build_map(args.frames, args.threads, shlex.split(args.overrides))
     print(head, flush=True)
-    sys_, _, pick = call
+    mapper, _, pick = call
     torch.set_num_threads(args.threads)  # the run's end restored the count it found
-    per_tile, per_px, n_view, n = pair_counts(sys_, pick, 4)
+    per_tile, per_px, n_view, n = pair_counts(mapper, pick, 4)
     print(
         f"  {n} Gaussians, {n_view} in view on average; {per_px:.1f} contributing (pixel, Gaussian) pairs per "
-        f"pixel, {per_tile:.0f} list entries per {TILE}x{TILE} tile; {sys_.W}x{sys_.H} px, "
+        f"pixel, {per_tile:.0f} list entries per {TILE}x{TILE} tile; {mapper.renderer.W}x{mapper.renderer.H} px, "
         f"threads={torch.get_num_threads()}",
         flush=True,
     )

@@ -14,6 +14,7 @@ import yaml
 
 from bench.errors import ReportError
 from bench.names import use_method_names
+from bench.report.cells import Table
 from bench.report.collect import collect, finished_run_tables, grouped_run_tables, stack_run_tables
 from bench.report.figures.make import make_plots, regime_plots
 from bench.report.figures.output import DPI
@@ -26,7 +27,7 @@ from bench.report.route_scale import MILESTONES_FILE, read_milestones, scale_mar
 from bench.report.settings import mixed_settings, settings_markdown
 from bench.report.stats import confidence_interval
 from bench.report.swap import built_beside
-from bench.report.tables import SELECTABLE_METRICS, Table, build_tables
+from bench.report.tables import SELECTABLE_METRICS, build_tables
 
 
 @dataclass

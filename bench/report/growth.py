@@ -22,7 +22,7 @@ import yaml
 from bench import schema
 from bench.names import dataset_name
 from bench.report.stats import welch_p
-from bench.report.tables import variant_runs, variants
+from bench.report.variants import variant_runs, variants
 
 PAPER_RUN_FILE = "paper_run.yaml"
 FINISHED = ("ok", "lost")

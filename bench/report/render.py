@@ -1,4 +1,4 @@
-"""Markdown and LaTeX (booktabs) text for the tables built in ``tables.py``.
+"""Markdown and LaTeX (booktabs) text for the tables built in ``tables.py`` (their model: ``cells.py``).
 
 The LaTeX is a ``table`` float holding a ``tabular``, so a paper can ``\\input`` it with only
 ``\\usepackage{booktabs}``; it is plain ASCII to survive any inputenc setting.
@@ -10,7 +10,7 @@ import re
 from typing import Literal
 
 from bench.names import column_name, dataset_name
-from bench.report.tables import AVG, Block, Cell, Table
+from bench.report.cells import AVG, Block, Cell, Table
 
 Target = Literal["md", "tex"]
 MARKS: dict[str, str] = {"lost": "-", "na": "n/a", "failed": "failed", "empty": "", "ref": "ref"}

@@ -24,7 +24,8 @@ from bench.names import method_name
 from bench.report.collect import is_missing, read_run_table
 from bench.report.paper import LOST, PAPER_STRATEGY, load_paper_tables
 from bench.report.stats import welch_p, within_noise
-from bench.report.tables import Variant, protocol_note, run_protocols, variant_runs, variants
+from bench.report.tables import protocol_note, run_protocols
+from bench.report.variants import Variant, variant_runs, variants
 
 Warn = Callable[[str], None]
 MILESTONES_FILE = schema.MILESTONES_FILE  # every run's rows, keyed by its runs.csv path, in a report folder

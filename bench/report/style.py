@@ -23,7 +23,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from bench.names import LITERATURE, STRATEGY_ORDER, method_name
-from bench.report.tables import Variant
+from bench.report.variants import Variant
 
 MAX_SERIES = 7
 BASELINE = "none"

@@ -1,110 +1,27 @@
 """The paper's table layouts (Tables I-IV) built from measured runs, independent of output format.
 
-A table is method rows grouped in metric blocks, sequences as columns plus ``Avg``; the
-renderers in ``render.py`` only format these cells. Keeping the numbers here lets tests check
-values (best, relative figures) without parsing LaTeX.
+The accuracy and performance tables of each dataset (one pair per ``eval.protocol``), their metric
+blocks and notes, and the selection of blocks by metric. The parts they are built from: the table model
+(``cells.py``), the measured rows (``variants.py``), pooled cells (``pooling.py``), the paper's rows
+(``paper_rows.py``), the baseline comparison (``baseline.py``) and the marks (``marks.py``).
 """
 
 from __future__ import annotations
 
-import statistics
-from dataclasses import dataclass, field, replace
-from typing import Literal
+from dataclasses import dataclass, replace
 
 import pandas as pd
 
 from bench.metrics.protocol import is_masked
-from bench.names import dataset_name, file_token, method_name, paper_sequence, sequence_sort_key, strategy_rank
+from bench.names import dataset_name
+from bench.report.baseline import Baseline, mark_noise, pick_baseline, relative_block, seed_note
+from bench.report.cells import AVG, Better, Block, Cell, Row, Table
 from bench.report.collect import DEFAULT_PROTOCOL, is_missing
-from bench.report.paper import LOST, PAPER_METRIC, PAPER_STRATEGY, PAPER_UNIT, paper_values
-from bench.report.stats import ALPHA, welch_p, within_noise
+from bench.report.marks import MARKS_NOTE, mark_best, marks_note
+from bench.report.paper_rows import PaperRows, ordered_rows, paper_overlaps, read_paper_rows
+from bench.report.pooling import average_cell, seed_cell
+from bench.report.variants import Variant, sequences, variant_runs, variants
 from bench.schema import UNFINISHED
-
-CellKind = Literal["num", "lost", "na", "failed", "empty", "ref"]
-Better = Literal["lower", "higher"]
-Style = Literal["value", "percent", "times"]
-AVG = "Avg"
-
-
-@dataclass(frozen=True)
-class Cell:
-    """One table entry: a mean (± std over seeds) or a mark saying why there is no number."""
-
-    kind: CellKind
-    mean: float | None = None
-    std: float | None = None
-    decimals: int | None = None  # overrides the block's; paper figures keep their printed precision
-    unit: str = ""
-    note: str = ""  # e.g. "1/3 lost": seeds left out of the mean
-    bold: bool = False
-    partial: bool = False  # an Avg over fewer sequences than shown: not ranked against full ones
-    values: tuple[float, ...] = ()  # the per-seed values behind mean and std (an Avg: per-seed averages)
-    seeds: tuple[int | None, ...] = ()  # their seeds, in the same order
-    p_value: float | None = None  # Welch's t-test against the baseline's cell in the same column
-    noise: bool = False  # the difference from the baseline is within seed noise (p >= ALPHA)
-
-
-EMPTY = Cell("empty")
-
-
-def _num(cell: Cell) -> float:
-    """The mean of a "num" cell: every one has a mean (the other kinds are marks without a number)."""
-    assert cell.mean is not None, cell
-    return cell.mean
-
-
-@dataclass
-class Row:
-    label: str
-    cells: list[Cell]
-    paper: bool = False
-    variant: Variant | None = None  # the measured row's strategy/keep/preset; None for paper rows
-
-
-@dataclass
-class Block:
-    """Rows for one metric; ``better`` decides the bold cell, ``style`` how numbers print."""
-
-    title: str
-    better: Better | None
-    style: Style
-    decimals: int
-    rows: list[Row] = field(default_factory=list)
-    key: str = ""  # the runs.csv metric behind the block (relative blocks: the source block's)
-
-
-@dataclass
-class Table:
-    kind: Literal["accuracy", "performance"]
-    dataset: str
-    columns: list[str]  # sequence names, then "Avg"
-    blocks: list[Block]
-    caption: str
-    notes: list[str]
-    protocol: str = DEFAULT_PROTOCOL  # eval.protocol of every run in the table (one per table, never mixed)
-    split: bool = False  # the dataset's runs hold several protocols: one table each, named by protocol
-
-    @property
-    def name(self) -> str:
-        suffix = f"_{self.protocol}" if self.split else ""
-        return f"{self.kind}_{file_token(self.dataset)}{suffix}"
-
-
-@dataclass(frozen=True)
-class Variant:
-    """A measured table row: one strategy at one keep ratio on one backend preset, seeds pooled.
-
-    Runs of different ``slam_preset`` values are different rows (labelled ``[preset]``), never pooled:
-    the presets re-seed differently, so their averages would mix two systems. So are runs of different
-    memory policies (labelled ``+ policy``).
-    """
-
-    strategy: str
-    keep_ratio: float | None
-    label: str
-    slam_preset: str = "default"
-    memory_policy: str = ""  # bench.report.settings.policy_label; "" = today's keyframe store, densification, residency
-    pruning: str = ""  # bench.report.settings.pruning_label; "" = the keep ratio and the strategy's default parameters
 
 
 @dataclass(frozen=True)
@@ -138,237 +55,13 @@ FPS = MetricSpec("fps", "FPS", "higher", 2)
 # the paper's released code's FPS: 1 / (tracking + mapping s per frame); runs before it existed have no column
 FPS_SLAM = MetricSpec("fps_slam", "FPS (tracking + mapping)", "higher", 2)
 
-MARKS_NOTE = (
-    "'-': tracking lost; 'n/a': metric unavailable; 'failed': run crashed; empty: not run. "
-    "Several seeds: mean ± sample std (n-1); 'k/n lost' counts seeds left out of the mean. "
-    "Avg: over the sequences with a value (the paper's convention), 'k/n seqs' where not all have one. "
-    "Bold: best measured value (full averages only)."
-)
-
-
-def _keep(value: object) -> float | None:
-    return None if is_missing(value) else float(value)  # type: ignore[arg-type]
-
-
-def _presets(runs: pd.DataFrame) -> pd.Series:
-    return runs["slam_preset"] if "slam_preset" in runs else pd.Series("default", index=runs.index)
-
-
-def _policies(runs: pd.DataFrame) -> pd.Series:
-    """Each run's memory policy; "" for runs (or stored tables) from before the column existed."""
-    if "memory_policy" not in runs:
-        return pd.Series("", index=runs.index)
-    return runs["memory_policy"].map(lambda v: "" if is_missing(v) else str(v))
-
-
-def _prunings(runs: pd.DataFrame) -> pd.Series:
-    """Each run's pruning label; "" for runs (or stored tables) from before the column existed."""
-    if "pruning" not in runs:
-        return pd.Series("", index=runs.index)
-    return runs["pruning"].map(lambda v: "" if is_missing(v) else str(v))
-
-
-def variants(runs: pd.DataFrame) -> list[Variant]:
-    """Measured rows in paper order; the keep ratio is named only where a strategy ran several,
-    the backend preset only where the runs hold several, the memory policy wherever it is not today's, the
-    pruning schedule (an absolute target, other strategy parameters) wherever it is not the usual one."""
-    presets, policies, prunings = _presets(runs), _policies(runs), _prunings(runs)
-    found = {
-        (s, _keep(k), str(p), m, g)
-        for s, k, p, m, g in zip(runs["strategy"], runs["keep_ratio"], presets, policies, prunings, strict=True)
-    }
-    ratios: dict[tuple[str, str, str], int] = {}
-    for strategy, _, preset, policy, _ in found:
-        ratios[strategy, preset, policy] = ratios.get((strategy, preset, policy), 0) + 1
-    several_presets = len({p for _, _, p, _, _ in found}) > 1
-    out = []
-
-    def order(p: tuple[str, float | None, str, str, str]) -> tuple:
-        return p[2] != "default", p[2], p[3], strategy_rank(p[0]), -1.0 if p[1] is None else p[1], p[4]
-
-    for strategy, keep, preset, policy, pruning in sorted(found, key=order):
-        label = method_name(strategy)
-        if pruning:
-            label += f" ({pruning})"
-        elif ratios[strategy, preset, policy] > 1:
-            label += f" (keep {keep:g})" if keep is not None else " (absolute target)"
-        if policy:
-            label += f" + {policy}"
-        if several_presets:
-            label += f" [{preset}]"
-        out.append(Variant(strategy, keep, label, preset, policy, pruning))
-    return out
-
-
-def variant_runs(runs: pd.DataFrame, variant: Variant) -> pd.DataFrame:
-    keep = runs["keep_ratio"]
-    same_keep = keep.isna() if variant.keep_ratio is None else keep == variant.keep_ratio
-    same = (runs["strategy"] == variant.strategy) & same_keep & (_presets(runs) == variant.slam_preset)
-    return runs[same & (_policies(runs) == variant.memory_policy) & (_prunings(runs) == variant.pruning)]
-
-
-def sequences(runs: pd.DataFrame, dataset: str) -> list[str]:
-    return sorted(set(runs["seq"]), key=lambda s: sequence_sort_key(dataset, s))
-
-
-def seed_cell(runs: pd.DataFrame, metric: str) -> Cell:
-    """Pool the seeds of one (variant, sequence): lost seeds are counted, not averaged."""
-    if runs.empty:
-        return EMPTY
-    status = runs["status"]
-    n_lost, n_failed = int((status == "lost").sum()), int((status == "failed").sum())
-    ok = runs[status == "ok"]
-    if ok.empty:
-        return Cell("lost") if n_lost else Cell("failed") if n_failed else EMPTY
-    pairs = (
-        [
-            (float(v), None if is_missing(s) else int(s))
-            for v, s in zip(ok[metric], ok["seed"], strict=True)
-            if not is_missing(v)
-        ]
-        if metric in ok
-        else []
-    )
-    if not pairs:
-        return Cell("na")
-    values = [v for v, _ in pairs]
-    total = len(runs)
-    notes = [f"{n}/{total} {what}" for n, what in ((n_lost, "lost"), (n_failed, "failed")) if n]
-    std = statistics.stdev(values) if len(values) > 1 else None
-    return Cell(
-        "num",
-        mean=statistics.fmean(values),
-        std=std,
-        note=", ".join(notes),
-        values=tuple(values),
-        seeds=tuple(s for _, s in pairs),
-    )
-
-
-def average_cell(cells: list[Cell]) -> Cell:
-    """Mean over sequences with a number; with none, the most telling mark among them."""
-    numbers = [c for c in cells if c.kind == "num" and c.mean is not None]
-    if numbers:
-        decimals = max((c.decimals for c in numbers if c.decimals is not None), default=None)
-        partial = len(numbers) < len(cells)
-        note = f"{len(numbers)}/{len(cells)} seqs" if partial else ""
-        seeds, values = ((), ()) if partial else _per_seed_averages(numbers)
-        # printed without ± as in the paper; the per-seed averages feed the noise test and stats.csv
-        return Cell(
-            "num",
-            mean=statistics.fmean(_num(c) for c in numbers),
-            decimals=decimals,
-            unit=numbers[0].unit,
-            note=note,
-            partial=partial,
-            values=values,
-            seeds=seeds,
-        )
-    for kind in ("lost", "failed", "na"):
-        if any(c.kind == kind for c in cells):
-            return Cell(kind)
-    return EMPTY
-
-
-def _per_seed_averages(cells: list[Cell]) -> tuple[tuple[int, ...], tuple[float, ...]]:
-    """Per seed, the mean over the sequences: the sample an Avg's noise is judged on. Only seeds
-    that every sequence ran once each count; otherwise there is no sample."""
-    by_seed: list[dict[int, float]] = []
-    for cell in cells:
-        if len(cell.seeds) != len(set(cell.seeds)) or None in cell.seeds:
-            return (), ()
-        by_seed.append(dict(zip(cell.seeds, cell.values, strict=True)))  # type: ignore[arg-type]
-    common = sorted(set.intersection(*(set(d) for d in by_seed))) if by_seed else []
-    return tuple(common), tuple(statistics.fmean(d[s] for d in by_seed) for s in common)
-
-
-def _decimals(text: str) -> int:
-    return len(text.split(".", 1)[1]) if "." in text else 0
-
-
-def paper_cell(text: str | None, unit: str = "") -> Cell:
-    if text is None or text == "":
-        return EMPTY
-    if text == LOST:
-        return Cell("lost")
-    try:
-        return Cell("num", mean=float(text), decimals=_decimals(text), unit=unit)
-    except ValueError:
-        return Cell("na")
-
-
-@dataclass
-class _PaperRows:
-    """Paper rows of one table, keyed by paper method, with per-sequence cells."""
-
-    by_method: dict[str, dict[str, list[Cell]]]  # method -> metric key -> cells (columns order)
-    recomputed_avg: bool
-
-
-def _paper_rows(paper: pd.DataFrame, table: str, dataset: str, seqs: list[str], metrics: list[str]) -> _PaperRows:
-    values = paper_values(paper, table, dataset)
-    by_method: dict[str, dict[str, list[Cell]]] = {}
-    recomputed = False
-    for method, per_metric in values.items():
-        by_method[method] = {}
-        for key in (k for k in metrics if k in PAPER_METRIC):
-            printed = per_metric.get(PAPER_METRIC[key], {})
-            unit = PAPER_UNIT.get(PAPER_METRIC[key], "")
-            cells = [paper_cell(printed.get(paper_sequence(dataset, s)), unit) for s in seqs]
-            paper_seqs = {s for s in printed if s != AVG}
-            shown = {paper_sequence(dataset, s) for s in seqs}
-            if paper_seqs <= shown and AVG in printed:
-                avg = paper_cell(printed[AVG], unit)
-            else:
-                avg = average_cell(cells)
-                recomputed = recomputed or avg.kind == "num"
-            by_method[method][key] = cells + [avg]
-    return _PaperRows(by_method, recomputed)
-
-
-def _has_overlap(paper: pd.DataFrame, table: str, dataset: str, seqs: list[str]) -> bool:
-    rows = paper[(paper["table"] == table) & (paper["dataset"] == dataset)]
-    shown = {paper_sequence(dataset, s) for s in seqs}
-    return bool(shown & set(rows["sequence"]))
-
-
-def _ordered_rows(measured: list[tuple[Variant, Row]], paper_rows: list[tuple[str, Row]]) -> list[Row]:
-    """Measured rows in paper order, each paper row right after the measured row of its method."""
-    keyed: list[tuple[tuple[int, str], int, int, Row]] = []
-    for i, (variant, row) in enumerate(measured):
-        keyed.append((strategy_rank(variant.strategy), 0, i, row))
-    for i, (method, row) in enumerate(paper_rows):
-        strategy = PAPER_STRATEGY.get(method, method)
-        keyed.append((strategy_rank(strategy), 1, i, row))
-    return [row for *_, row in sorted(keyed, key=lambda k: k[:3])]
-
-
-def mark_best(block: Block) -> None:
-    """Bold the best measured value per column; ties at printed precision all win, but a column
-    where every entry ties has no best. Paper rows and partial averages are not ranked."""
-    if block.better is None or not block.rows:
-        return
-    for col in range(len(block.rows[0].cells)):
-        candidates = [
-            (row, row.cells[col])
-            for row in block.rows
-            if not row.paper and row.cells[col].kind == "num" and not row.cells[col].partial
-        ]
-        shown = [round(_num(c), c.decimals if c.decimals is not None else block.decimals) for _, c in candidates]
-        if len(set(shown)) < 2:
-            continue
-        best = min(shown) if block.better == "lower" else max(shown)
-        for (row, cell), value in zip(candidates, shown, strict=True):
-            if value == best:
-                row.cells[col] = replace(cell, bold=True)
-
 
 def _metric_block(
     spec: MetricSpec,
     runs: pd.DataFrame,
     seqs: list[str],
     rows_for: list[Variant],
-    paper_rows: _PaperRows | None,
+    paper_rows: PaperRows | None,
 ) -> tuple[Block, dict[Variant, list[Cell]], dict[str, list[Cell]]]:
     measured: list[tuple[Variant, Row]] = []
     measured_cells: dict[Variant, list[Cell]] = {}
@@ -386,155 +79,9 @@ def _metric_block(
                 continue  # a metric the paper does not print (our SSIM: its "SSIM" is MS-SSIM)
             paper_cells[method] = per_metric[spec.key]
             prow.append((method, Row(f"(paper) {method}", list(per_metric[spec.key]), paper=True)))
-    block = Block(spec.title, spec.better, "value", spec.decimals, _ordered_rows(measured, prow), key=spec.key)
+    block = Block(spec.title, spec.better, "value", spec.decimals, ordered_rows(measured, prow), key=spec.key)
     mark_best(block)
     return block, measured_cells, paper_cells
-
-
-def mark_noise(block: Block, measured: dict[Variant, list[Cell]], baseline: Baseline | None) -> None:
-    """Test every measured cell against the baseline's cell in its column (Welch, per-seed values)
-    and flag it when the difference is within seed noise; ``measured`` is updated alongside."""
-    if baseline is None:
-        return
-    for row in block.rows:
-        variant = row.variant
-        if variant is None or variant.strategy == baseline.default.strategy:
-            continue
-        base = measured.get(baseline.for_variant(variant))
-        if base is None:
-            continue
-        for i, (cell, ref) in enumerate(zip(row.cells, base, strict=True)):
-            if cell.kind == "num" and ref.kind == "num":
-                p = welch_p(cell.values, ref.values)
-                row.cells[i] = replace(cell, p_value=p, noise=within_noise(p))
-        measured[variant] = row.cells
-
-
-def seed_note(blocks: list[Block]) -> str:
-    """What the spread in the table rests on: how many seeds per cell, and the noise marker."""
-    counts = sorted(
-        {
-            len(c.values)
-            for b in blocks
-            for r in b.rows
-            if not r.paper
-            for c in r.cells[:-1]
-            if c.kind == "num" and c.values
-        }
-    )
-    if not counts or counts[-1] < 2:
-        return "1 seed: no noise estimate; a difference from the baseline may be seed noise."
-    n = str(counts[0]) if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
-    return (
-        f"Seeds per cell: {n}; 95% confidence intervals in stats.csv. "
-        f"†: within seed noise of the baseline (Welch's t-test on the per-seed values, p >= {ALPHA:g}); "
-        "a cell with fewer than 2 seeds on either side is not tested. "
-        "Avg is tested on per-seed averages over the sequences."
-    )
-
-
-def relative_cells(cells: list[Cell], base: list[Cell], style: Style) -> list[Cell]:
-    """Per sequence ``x / base`` (times) or ``x / base - 1`` (percent); Avg is the ratio of the
-    means over the sequences both have, so a sequence one of them lost cannot skew it."""
-    out = []
-    pairs = []
-    for cell, ref in zip(cells[:-1], base[:-1], strict=True):
-        if cell.kind == "num" and ref.kind == "num" and ref.mean:
-            pairs.append((_num(cell), ref.mean))
-            out.append(replace(_ratio_cell(_num(cell) / ref.mean, style), p_value=cell.p_value, noise=cell.noise))
-        elif "lost" in (cell.kind, ref.kind):
-            out.append(Cell("lost"))
-        elif "failed" in (cell.kind, ref.kind):
-            out.append(Cell("failed"))
-        elif cell.kind == "empty" or ref.kind == "empty":
-            out.append(EMPTY)
-        else:
-            out.append(Cell("na"))
-    if pairs:
-        ratio = statistics.fmean(p[0] for p in pairs) / statistics.fmean(p[1] for p in pairs)
-        cell = _ratio_cell(ratio, style)
-        if len(pairs) < len(out):
-            cell = replace(cell, note=f"{len(pairs)}/{len(out)} seqs", partial=True)
-        elif cells[-1].kind == "num":
-            cell = replace(cell, p_value=cells[-1].p_value, noise=cells[-1].noise)
-        out.append(cell)
-    else:
-        out.append(average_cell(out))
-    return out
-
-
-def _ratio_cell(ratio: float, style: Style) -> Cell:
-    return Cell("num", mean=(ratio - 1.0) * 100.0 if style == "percent" else ratio)
-
-
-def _relative_block(
-    title: str,
-    style: Style,
-    source: Block,
-    measured: dict[Variant, list[Cell]],
-    baseline: Baseline,
-    paper: dict[str, list[Cell]],
-) -> Block:
-    by_label = {v.label: (v, cells) for v, cells in measured.items()}
-    paper_base = paper.get("LSG-SLAM")
-    rows = []
-    for row in source.rows:
-        if row.paper:
-            method = row.label.removeprefix("(paper) ")
-            if paper_base is None:
-                continue
-            cells = paper[method]
-            is_base = method == "LSG-SLAM"
-            rel = [Cell("ref")] * len(cells) if is_base else relative_cells(cells, paper_base, style)
-        else:
-            variant, cells = by_label[row.label]
-            if variant.strategy == baseline.default.strategy:
-                rel = [Cell("ref")] * len(cells)
-            else:
-                rel = relative_cells(cells, measured[baseline.for_variant(variant)], style)
-        rows.append(Row(row.label, rel, paper=row.paper, variant=row.variant))
-    decimals = 1 if style == "percent" else 2
-    return Block(title, None, style, decimals, rows, key=source.key)
-
-
-@dataclass(frozen=True)
-class Baseline:
-    """The measured row(s) others are compared with. A baseline that ran at several keep ratios
-    (a sweep over ``prune.keep_ratio`` that includes ``none``) pairs each row with the baseline
-    at the same keep ratio, falling back to ``default``."""
-
-    default: Variant
-    by_keep: dict[float | None, Variant]
-    by_preset: dict[tuple[str, float | None], Variant] = field(default_factory=dict)
-
-    def for_variant(self, variant: Variant) -> Variant:
-        """The baseline of the same preset (and keep ratio where it ran several); presets never mix."""
-        same = self.by_preset.get((variant.slam_preset, variant.keep_ratio))
-        if same is not None:
-            return same
-        in_preset = [v for (p, _), v in self.by_preset.items() if p == variant.slam_preset]
-        if in_preset:
-            return ([v for v in in_preset if v.keep_ratio in (None, 1.0)] or in_preset)[0]
-        return self.by_keep.get(variant.keep_ratio, self.default)
-
-
-def pick_baseline(found: list[Variant], baseline: str) -> tuple[Baseline | None, str | None]:
-    """The baseline rows for one dataset; a warning when it ran at several keep ratios."""
-    candidates = [v for v in found if v.strategy == baseline]
-    if not candidates:
-        return None, None
-    chosen = ([v for v in candidates if v.keep_ratio in (None, 1.0)] or candidates)[0]
-    result = Baseline(
-        chosen,
-        {v.keep_ratio: v for v in candidates if v.slam_preset == chosen.slam_preset},
-        {(v.slam_preset, v.keep_ratio): v for v in candidates},
-    )
-    if len({v.keep_ratio for v in candidates}) == 1:
-        return result, None
-    return result, (
-        f"baseline '{baseline}' ran at several keep ratios; each row is compared with the baseline at its "
-        f"own keep ratio, else with '{chosen.label}'"
-    )
 
 
 def protocol_note(protocol: str) -> str:
@@ -563,9 +110,9 @@ def accuracy_table(
     found = variants(runs)
     notes = [MARKS_NOTE, protocol_note(protocol)]
     prows = None
-    if paper is not None and _has_overlap(paper, "accuracy", dataset, seqs):
+    if paper is not None and paper_overlaps(paper, "accuracy", dataset, seqs):
         if is_masked(protocol):
-            prows = _paper_rows(paper, "accuracy", dataset, seqs, [m.key for m in ACCURACY_METRICS])
+            prows = read_paper_rows(paper, "accuracy", dataset, seqs, [m.key for m in ACCURACY_METRICS])
             notes.append(
                 f"(paper) rows: the figures printed in the Pocket-SLAM paper, not bold-ranked, beside runs "
                 f"scored with eval.protocol={protocol}; which of the two masked protocols (splatam, "
@@ -618,8 +165,8 @@ def performance_table(
         "FPS vs baseline: FPS / baseline FPS; their Avg is the ratio of means over the sequences both have.",
     ]
     prows = None
-    if paper is not None and _has_overlap(paper, "performance", dataset, seqs):
-        prows = _paper_rows(paper, "performance", dataset, seqs, [MEMORY.key, FPS.key])
+    if paper is not None and paper_overlaps(paper, "performance", dataset, seqs):
+        prows = read_paper_rows(paper, "performance", dataset, seqs, [MEMORY.key, FPS.key])
         notes.append(
             "(paper) rows: the figures printed in the Pocket-SLAM paper (memory in GB as printed), "
             "compared with the paper's own LSG-SLAM; not bold-ranked."
@@ -640,10 +187,10 @@ def performance_table(
     )
     blocks = [mem]
     if base is not None:
-        blocks.append(_relative_block("Memory vs baseline", "percent", mem, mem_cells, base, mem_paper))
+        blocks.append(relative_block("Memory vs baseline", "percent", mem, mem_cells, base, mem_paper))
     blocks.append(fps)
     if base is not None:
-        blocks.append(_relative_block("FPS vs baseline", "times", fps, fps_cells, base, fps_paper))
+        blocks.append(relative_block("FPS vs baseline", "times", fps, fps_cells, base, fps_paper))
         several = len(base.by_keep) > 1
         notes.append(
             f"Baseline: {base.default.label}" + (" (or the baseline at the same keep ratio)." if several else ".")
@@ -701,36 +248,6 @@ _NOTE_METRICS: dict[str, tuple[str, ...]] = {
 }
 
 
-def marks_note(blocks: list[Block]) -> str:
-    """The legend of the marks and conventions that occur in these blocks, and only those."""
-    cells = [c for b in blocks for r in b.rows if not r.paper for c in r.cells]
-    kinds = {c.kind for c in cells}
-    parts = [
-        text
-        for kind, text in (
-            ("lost", "'-': tracking lost"),
-            ("na", "'n/a': metric unavailable"),
-            ("failed", "'failed': run crashed"),
-            ("empty", "empty: not run"),
-        )
-        if kind in kinds
-    ]
-    sentences = ["; ".join(parts) + "." if parts else ""]
-    if any(c.std is not None for c in cells):
-        sentences.append("Several seeds: mean ± sample std (n-1).")
-    if any(c.note and ("lost" in c.note or "failed" in c.note) for c in cells):
-        sentences.append("'k/n lost' counts seeds left out of the mean.")
-    if any(c.partial for c in cells):
-        sentences.append(
-            "Avg: over the sequences with a value (the paper's convention), 'k/n seqs' where not all have one."
-        )
-    if any(c.bold for c in cells):
-        sentences.append(
-            "Bold: best measured value" + (" (full averages only)." if any(c.partial for c in cells) else ".")
-        )
-    return " ".join(s for s in sentences if s)
-
-
 def select_metrics(table: Table, metrics: tuple[str, ...] | None) -> Table | None:
     """``table`` with only the blocks of ``metrics`` (None: all) and the notes that still apply,
     the marks note rebuilt from what occurs; None when no block is left."""
@@ -782,6 +299,6 @@ def build_tables(
                 if kept is not None:
                     tables.append(kept)
             warnings.extend(warns)
-        if paper is not None and not _has_overlap(paper, "accuracy", dataset, sequences(ds, dataset)):
+        if paper is not None and not paper_overlaps(paper, "accuracy", dataset, sequences(ds, dataset)):
             warnings.append(f"{dataset}: the paper has no figures for the sequences measured, no paper rows")
     return tables, warnings

@@ -61,7 +61,7 @@ def finish(
     metrics.update(schema.memory_summary([*drive.windows, drive.tail], device.type))
     metrics.update(schema.regime_summary(drive.windows, (system.H, system.W), metrics[schema.PEAK_SOURCE_FIELD]))
     metrics["gaussians_final"] = len(system.map)
-    metrics["tracking_velocity_starts"] = system.init_source.count("velocity")
+    metrics["tracking_velocity_starts"] = system.tracking.init_source.count("velocity")
     # churn: did pruning shrink the map, or only feed re-seeding?
     metrics["gaussians_added_total"] = sum(w["n_added"] for w in drive.windows)
     metrics["gaussians_pruned_total"] = sum(w["n_pruned"] for w in drive.windows)
@@ -77,7 +77,7 @@ def finish(
             Phase("refine", cfg.slam.refine_iters, "iteration", cfg.progress) as bar,
         ):
             curve = RefineCurve(cfg, parts, est_c2w, device, rows, bar.update)
-            system.refine(cfg.slam.refine_iters, on_step=curve.step)
+            system.mapping.refine(cfg.slam.refine_iters, on_step=curve.step)
         metrics["refine_s"] = round(timer.totals()["refine"] - curve.eval_s, 3)  # the curve's rows are not refinement
     t_eval = time.perf_counter()
     metrics.update(evaluate(cfg, out, parts, est_c2w, drive, device, images=not partial, into=metrics))
@@ -211,7 +211,7 @@ class RefineCurve:
         self.done, self.eval_s, self.t0 = 0, 0.0, time.perf_counter()
 
     def step(self) -> None:
-        """Called once an iteration is done (``Mapper.refine``'s ``on_step``)."""
+        """Called once an iteration is done (``Mapping.refine``'s ``on_step``)."""
         self.tick()
         self.done += 1
         if self.done not in self.at:

@@ -152,7 +152,7 @@ class SlamConfig:
     # option: it is a difference from the paper's base system, and its effect on the fit differs between
     # exact and stereo depth (measured in reports/fidelity/README.md)
     mapping_draw: str = setting("alternate", "str", choices=MAPPING_DRAWS)
-    # iterations over all keyframes once the drive is over (System.refine), timed apart from the
+    # iterations over all keyframes once the drive is over (Mapping.refine), timed apart from the
     # SLAM loop and not in fps; 0 = evaluate the map exactly as mapping left it
     refine_iters: int = setting(0, "int", lo=0)
     # every learning rate of the final refinement decays exponentially from its mapping value to this fraction

@@ -1,4 +1,4 @@
-"""Differentiable image losses for mapping, beside the L1 terms the system writes inline.
+"""Differentiable image losses: the depth L1 that tracking and mapping share, and mapping's D-SSIM.
 
 The D-SSIM term is the one 3DGS (``utils/loss_utils.py``: ``(1 - lambda) * L1 + lambda * (1 - ssim)``,
 lambda = 0.2) and SplaTAM's mapping (``scripts/splatam.py`` ``get_loss``: ``0.8 * l1 + 0.2 * (1 - calc_ssim)``)
@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import torch
 import torch.nn.functional as F
+
+from bench.slam.raster import RasterOutput
 
 SSIM_WINDOW_PX = 11
 SSIM_SIGMA_PX = 1.5
@@ -46,3 +48,21 @@ def ssim_map(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 def dssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """1 - mean SSIM of two [H, W, 3] images: the structural term of the 3DGS mapping loss."""
     return 1.0 - ssim_map(pred, target).mean()
+
+
+def rendered_depth(out: RasterOutput, normalized: bool) -> torch.Tensor:
+    """The render's depth [H, W] (m); ``normalized``: divided by its alpha (``slam.depth_normalized``)."""
+    if normalized:
+        return out.depth / out.alpha.clamp_min(1e-3)
+    return out.depth
+
+
+def depth_l1(
+    out: RasterOutput, depth: torch.Tensor, max_m: float, normalized: bool, mask: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Mean L1 depth error of the render ``out`` against ``depth`` [H, W] over valid pixels nearer than
+    ``max_m`` (``slam.depth_loss_max_m``), within ``mask`` [H, W] where given (tracking and mapping both)."""
+    dmask = (depth > 0) & (depth < max_m)
+    if mask is not None:
+        dmask &= mask
+    return ((rendered_depth(out, normalized) - depth).abs() * dmask).sum() / dmask.sum().clamp_min(1)

@@ -3,29 +3,83 @@ window of keyframes; and the refinement over every keyframe once the drive is ov
 
 from __future__ import annotations
 
+import random
 from collections.abc import Callable
+from typing import Any, cast
 
+import numpy as np
 import torch
 
+from bench.slam.config import SlamConfig
 from bench.slam.densify import cap_keep, map_cap, pick_seeds, seed_budget
-from bench.slam.keyframes import Keyframe
-from bench.slam.losses import dssim
-from bench.slam.prune_diagnostics import own_fit
-from bench.slam.se3 import inverse
-from bench.slam.strategy import MappingContext
-from bench.slam.system_state import SystemState
+from bench.slam.gaussians import GaussianMap
+from bench.slam.keyframes import Keyframe, KeyframeStore
+from bench.slam.losses import depth_l1, dssim
+from bench.slam.prune_diagnostics import PruneDiagnostics, own_fit
+from bench.slam.raster import RasterOutput
+from bench.slam.renderer import Renderer
+from bench.slam.residency import MapResidency
+from bench.slam.strategy import MappingContext, PruneContext, Strategy
+
+# (keyframe index, its stats=True render, is_new [N], candidates [N]) -> what the strategy's cap_score reads
+PruneContextOf = Callable[[int, RasterOutput, torch.Tensor, torch.Tensor], PruneContext]
 
 
-class Mapping(SystemState):
-    """The mapping half of ``System`` (mixed into it): densification and optimisation of the system's map."""
+class Mapping:
+    """The mapping part of ``System``: densification and optimisation of its map, with the generators they
+    draw from and what the last densification's budget and cap did.
+
+    It reads the prune diagnostics' opened pixels (``PruneDiagnostics.count_in_holes``), the keyframes held,
+    map residency (a view whose part of the map is on disk is left out), and asks ``prune_context`` for
+    what the strategy scores the map with at the cap (``slam.densify.cap``)."""
+
+    def __init__(
+        self,
+        cfg: SlamConfig,
+        gaussians: GaussianMap,
+        keyframes: KeyframeStore,
+        renderer: Renderer,
+        strategy: Strategy,
+        diagnostics: PruneDiagnostics,
+        residency: MapResidency | None,
+        prune_context: PruneContextOf,
+        map_grad2d: bool,
+        device: torch.device,
+    ) -> None:
+        """``map_grad2d``: add the mapping iterations' ||dL/d means2d|| to the map's state (a strategy reads it)."""
+        self.cfg, self.map, self.keyframes, self.renderer = cfg, gaussians, keyframes, renderer
+        self.strategy, self.diagnostics, self.residency = strategy, diagnostics, residency
+        self.prune_context, self.map_grad2d, self.device = prune_context, map_grad2d, device
+        # one generator per consumer, all from the run seed, so that a change in one (say, more
+        # keyframes) does not shift the draws of another
+        self.rng = random.Random(cfg.seed)  # keyframe sampling in mapping and refinement
+        self.densify_rng = np.random.default_rng([cfg.seed, 1])  # seeding-grid offsets per keyframe
+        self.reseeded = 0  # seeds of the last densification that landed in pixels prunes opened
+        # slam.densify: what the last densification's budget and cap left out and removed (keyframes.csv), and
+        # the map's size after keyframe 0, where budget=taming's curve starts (checkpointed)
+        self.densify_dropped = self.cap_removed = 0
+        self.densify_start: int | None = None
+
+    def state_dict(self) -> dict[str, Any]:
+        """The generators and the taming curve's start, under the keys ``System.state_dict`` has always written."""
+        return {
+            "rng": _py_rng_state(self.rng),
+            "densify_rng": cast(dict[str, Any], self.densify_rng.bit_generator.state),  # str and int: loads as weights
+            "densify_start": self.densify_start,
+        }
+
+    def load_state_dict(self, sd: dict[str, Any]) -> None:
+        self.rng.setstate(_py_rng_from(sd["rng"]))
+        self.densify_rng.bit_generator.state = sd["densify_rng"]
+        self.densify_start = sd.get("densify_start")  # absent from checkpoints before slam.densify
 
     @torch.no_grad()
-    def _densify(self, rgb: torch.Tensor, depth: torch.Tensor, w2c: torch.Tensor, kf_idx: int) -> int:
+    def densify(self, rgb: torch.Tensor, depth: torch.Tensor, w2c: torch.Tensor, kf_idx: int) -> int:
         cfg = self.cfg
         valid = depth > 0
         deficit = err = None  # [H, W] each: what slam.densify.seed_order=need ranks by
         if len(self.map):
-            out = self.render(w2c)
+            out = self.renderer.render(self.map, w2c)
             err = (out.depth - depth).abs()
             deficit = 1 - out.alpha
             if cfg.densify_err_median == "image":  # SplaTAM: over every pixel, those without depth at 0
@@ -41,25 +95,22 @@ class Mapping(SystemState):
         else:
             need = torch.ones_like(valid)
         s = cfg.densify_stride
-        oy, ox = (int(o) for o in self._densify_rng.integers(0, s, size=2))  # the grid's phase varies with the seed
+        oy, ox = (int(o) for o in self.densify_rng.integers(0, s, size=2))  # the grid's phase varies with the seed
         grid = torch.zeros_like(valid)
         grid[oy::s, ox::s] = True
         sel = need & valid & grid
-        self._densify_dropped = self._cap_removed = 0
+        self.densify_dropped = self.cap_removed = 0
         if cfg.densify.cap is not None or cfg.densify.cap_per_mpix_kf is not None or cfg.densify.budget is not None:
             ones = torch.ones_like(depth)  # no map yet: every pixel's deficit is whole, its error even
             sel = self._bound_seeds(
                 sel, kf_idx, w2c, ones if deficit is None else deficit, err if err is not None else ones
             )
-        self._reseeded = self._count_in_holes(sel, depth, w2c)
+        self.reseeded = self.diagnostics.count_in_holes(sel, depth, w2c)
         if not sel.any():
             return 0
         z = depth[sel]  # [M]
-        uv = self._pix[sel]  # [M, 2]
-        fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
-        p_cam = torch.stack([(uv[:, 0] - cx) / fx * z, (uv[:, 1] - cy) / fy * z, z], -1)
-        c2w = inverse(w2c)
-        means = p_cam @ c2w[:3, :3].T + c2w[:3, 3]
+        means = self.renderer.unproject(sel, depth, w2c)  # [M, 3]
+        fx = self.renderer.K[0, 0]
         sigma_px = 0.5 * s + 0.25 if cfg.densify_sigma_px is None else cfg.densify_sigma_px
         n = z.shape[0]
         init_logit = torch.logit(torch.tensor(cfg.init_opacity)).item()
@@ -83,36 +134,36 @@ class Mapping(SystemState):
         At the cap the strategy's score ranks the map, and the lowest-scored Gaussians leave through
         ``GaussianMap.remove`` (the one removal path: Adam moments and state follow) to make room for the
         budgeted seeds; a strategy without a score removes nothing under ``unscored=drop`` and the seeds
-        beyond the cap are dropped. Sets ``_densify_dropped`` and ``_cap_removed`` (keyframes.csv).
+        beyond the cap are dropped. Sets ``densify_dropped`` and ``cap_removed`` (keyframes.csv).
         """
         dcfg = self.cfg.densify
         n_cand = int(sel.sum())
         k = n_cand
-        budget = seed_budget(dcfg, kf_idx, len(self.map), self._densify_start)
+        budget = seed_budget(dcfg, kf_idx, len(self.map), self.densify_start)
         if budget is not None:
             k = min(k, budget)
         cap = map_cap(dcfg, kf_idx, sel.numel())
         if cap is not None and len(self.map) + k > cap:
             score = self._cap_score(kf_idx, w2c) if len(self.map) else None
             if score is not None:
-                self._cap_removed = self.map.remove(cap_keep(score, max(cap - k, 0)))
+                self.cap_removed = self.map.remove(cap_keep(score, max(cap - k, 0)))
             k = max(min(k, cap - len(self.map)), 0)
-        if self._densify_start is None:  # the taming curve starts from the map as keyframe 0 leaves it
-            self._densify_start = len(self.map) + k
-        self._densify_dropped = n_cand - k
-        return pick_seeds(sel, k, dcfg.seed_order, deficit, err, self._densify_rng)
+        if self.densify_start is None:  # the taming curve starts from the map as keyframe 0 leaves it
+            self.densify_start = len(self.map) + k
+        self.densify_dropped = n_cand - k
+        return pick_seeds(sel, k, dcfg.seed_order, deficit, err, self.densify_rng)
 
     def _cap_score(self, kf_idx: int, w2c: torch.Tensor) -> torch.Tensor | None:
         """[N] the strategy's score of the map at the new keyframe's pose (every Gaussian a candidate, none
         new), or opacity under ``unscored=opacity``; None when neither ranks."""
-        out = self.render(w2c, stats=True)
+        out = self.renderer.render(self.map, w2c, stats=True)
         none = torch.zeros(len(self.map), dtype=torch.bool, device=self.device)
-        score = self.strategy.cap_score(self._prune_context(kf_idx, out, none, ~none))
+        score = self.strategy.cap_score(self.prune_context(kf_idx, out, none, ~none))
         if score is None and self.cfg.densify.unscored == "opacity":
             score = self.map.opacities.detach()
         return score
 
-    def _map(
+    def map_keyframe(
         self, kf_idx: int, own: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
     ) -> tuple[int, dict[str, float | None] | None]:
         """Optimise the map over the keyframe window; the iterations run (none after the first
@@ -126,13 +177,14 @@ class Mapping(SystemState):
         # the newest keyframes first; older ones keep the views of the early drive from being
         # overwritten by later close-ups (see mapping_window); drawn from the keyframes held (slam.keyframes.window)
         window = self.keyframes[::-1][: cfg.mapping_window or len(self.keyframes)]
-        if self._residency is not None:  # a view whose part of the map is on disk would pull the live map into it
-            window = [kf for kf in window if self._residency.resident(kf.kf)]
+        if self.residency is not None:  # a view whose part of the map is on disk would pull the live map into it
+            residency = self.residency
+            window = [kf for kf in window if residency.resident(kf.kf)]
 
         def pick(it: int) -> Keyframe:
             if cfg.mapping_draw == "uniform":
-                return self._rng.choice(window)
-            return window[0] if it % 2 == 0 or len(window) == 1 else self._rng.choice(window[1:])
+                return self.rng.choice(window)
+            return window[0] if it % 2 == 0 or len(window) == 1 else self.rng.choice(window[1:])
 
         n = cfg.mapping_iters
         self._optimize(kf_idx, n, pick)
@@ -140,7 +192,7 @@ class Mapping(SystemState):
             return n, None
         while n < cfg.mapping_fit_max_iters:
             with torch.no_grad():
-                fit = own_fit(self.render(own[2]).color, own[0], own[1])
+                fit = own_fit(self.renderer.render(self.map, own[2]).color, own[0], own[1])
             psnr = fit["kf_psnr_depth_db"]
             if psnr is None or psnr >= cfg.mapping_fit_psnr_db:  # no pixel with depth: nothing to reach
                 return n, fit
@@ -163,7 +215,7 @@ class Mapping(SystemState):
         def pick(it: int) -> Keyframe:
             if it and on_step is not None:
                 on_step()  # iteration it-1 is done
-            return self._rng.choice(self.keyframes)  # those held (slam.keyframes.window)
+            return self.rng.choice(self.keyframes)  # those held (slam.keyframes.window)
 
         self._optimize(self.keyframes.n_made - 1, iters, pick, lr_final=self.cfg.refine_lr_final)
         if on_step is not None:
@@ -188,14 +240,14 @@ class Mapping(SystemState):
                 for g, lr in zip(opt.param_groups, base, strict=True):
                     g["lr"] = lr * decay ** (it - start)  # decay 1: the rate itself
                 kf = pick(it)
-                out = self.render(kf.w2c, training=True, iteration=it)
-                if self._map_grad2d and out.means2d.requires_grad:
+                out = self.renderer.render(self.map, kf.w2c, training=True, iteration=it)
+                if self.map_grad2d and out.means2d.requires_grad:
                     out.means2d.retain_grad()
                 rgb, depth = kf.images()  # float32, read back from disk with residency=disk
                 color = (out.color - rgb).abs().mean()
                 if cfg.lambda_ssim_map > 0:
                     color = (1 - cfg.lambda_ssim_map) * color + cfg.lambda_ssim_map * dssim(out.color, rgb)
-                loss = color + cfg.lambda_depth_map * self._depth_l1(out, depth)
+                loss = color + cfg.lambda_depth_map * depth_l1(out, depth, cfg.depth_loss_max_m, cfg.depth_normalized)
                 extra = self.strategy.mapping_loss(MappingContext(kf_idx, it, self.map, self.map.state, True))
                 if extra is not None:
                     loss = loss + extra
@@ -203,7 +255,7 @@ class Mapping(SystemState):
                     continue
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
-                if self._map_grad2d and out.means2d.grad is not None:
+                if self.map_grad2d and out.means2d.grad is not None:
                     seen = (out.radius_px > 0).float()  # [N]
                     self.map.state["_map_grad2d_sum"] += out.means2d.grad.detach().norm(dim=-1) * seen
                     self.map.state["_map_grad2d_n"] += seen
@@ -212,3 +264,13 @@ class Mapping(SystemState):
         finally:
             for g, lr in zip(opt.param_groups, base, strict=True):
                 g["lr"] = lr
+
+
+def _py_rng_state(rng: random.Random) -> list:
+    """``random.Random`` state as plain values and one tensor (what ``torch.load(weights_only=True)`` reads)."""
+    version, internal, gauss = rng.getstate()
+    return [version, torch.tensor(internal, dtype=torch.int64), gauss]  # 625 words < 2**32
+
+
+def _py_rng_from(state: list) -> tuple:
+    return (state[0], tuple(state[1].tolist()), state[2])

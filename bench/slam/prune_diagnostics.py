@@ -7,9 +7,10 @@ import torch
 
 from bench.metrics.image import region_psnr_db
 from bench.schema import PRUNE_QUARTILE_COLUMNS
+from bench.slam.config import SlamConfig
+from bench.slam.gaussians import GaussianMap
 from bench.slam.raster import RasterOutput
-from bench.slam.se3 import inverse
-from bench.slam.system_state import SystemState
+from bench.slam.renderer import Renderer
 
 REDUNDANT_WEIGHT = 0.05  # a candidate whose blending weight never exceeds this is redundant (reports/fidelity)
 
@@ -29,16 +30,31 @@ def own_fit(color: torch.Tensor, rgb: torch.Tensor, depth: torch.Tensor) -> dict
     }
 
 
-class PruneDiagnostics(SystemState):
-    """The diagnostics half of ``System`` (mixed into it): read-only renders of the system's map."""
+class PruneDiagnostics:
+    """The diagnostics part of ``System``: read-only renders of its map, and the pixels its prunes opened
+    (held until the next densification counts the seeds that land there)."""
+
+    def __init__(self, cfg: SlamConfig, gaussians: GaussianMap, renderer: Renderer) -> None:
+        self.cfg, self.map, self.renderer = cfg, gaussians, renderer
+        # world points [M, 3] (numpy, so they stay out of the measured torch memory) of the pixels the
+        # prunes since the last densification opened: the next densification counts seeds landing there
+        self.holes: list[np.ndarray] = []
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        """The opened pixels' world points awaiting the next densification [M, 3] (``System.state_dict``)."""
+        return {"holes": torch.from_numpy(np.concatenate(self.holes) if self.holes else np.zeros((0, 3)))}
+
+    def load_state_dict(self, sd: dict) -> None:
+        holes = sd["holes"].numpy()
+        self.holes = [holes] if len(holes) else []
 
     @torch.no_grad()
-    def _fit_diagnostics(self, diag: dict, rgb: torch.Tensor, depth: torch.Tensor, w2c: torch.Tensor) -> None:
+    def fit(self, diag: dict, rgb: torch.Tensor, depth: torch.Tensor, w2c: torch.Tensor) -> None:
         """How well mapping fitted the keyframe it just mapped (``own_fit`` of its own render)."""
-        diag.update(own_fit(self.render(w2c).color, rgb, depth))
+        diag.update(own_fit(self.renderer.render(self.map, w2c).color, rgb, depth))
 
     @torch.no_grad()
-    def _prune_diagnostics(
+    def record(
         self,
         diag: dict,
         out: RasterOutput,
@@ -65,44 +81,40 @@ class PruneDiagnostics(SystemState):
         diag["n_pruned_redundant"] = diag.get("n_pruned_redundant", 0) + pruned_redundant
         holes = 0
         if n_removed:
-            after = self.render(w2c)
+            after = self.renderer.render(self.map, w2c)
             thr = self.cfg.densify_silhouette
             opened = (out.alpha >= thr) & (after.alpha < thr)  # [H, W]
             holes = int(opened.sum())
             sel = opened & (depth > 0)
             if sel.any():
-                z = depth[sel]
-                uv = self._pix[sel]
-                fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
-                p_cam = torch.stack([(uv[:, 0] - cx) / fx * z, (uv[:, 1] - cy) / fy * z, z], -1)
-                c2w = inverse(w2c)
-                self._holes.append((p_cam @ c2w[:3, :3].T + c2w[:3, 3]).cpu().numpy().astype(np.float64))
+                self.holes.append(self.renderer.unproject(sel, depth, w2c).cpu().numpy().astype(np.float64))
         diag["n_hole_px"] = diag.get("n_hole_px", 0) + holes
 
-    def _count_in_holes(self, sel: torch.Tensor, depth: torch.Tensor, w2c: torch.Tensor) -> int:
+    def count_in_holes(self, sel: torch.Tensor, depth: torch.Tensor, w2c: torch.Tensor) -> int:
         """Seeds (``sel`` [H, W]) in pixels the prunes since the last densification opened.
 
         The opened pixels' surface points (from their frames' observed depth) are projected into
         this keyframe; a point counts where it is the visible surface (within 5% of this frame's
         depth) and marks its pixel and the 8 around it (projected points of another view leave gaps).
         """
-        if not self._holes:
+        if not self.holes:
             return 0
-        pts = np.concatenate(self._holes)  # [M, 3] world
-        self._holes = []
+        pts = np.concatenate(self.holes)  # [M, 3] world
+        self.holes = []
         w = w2c.double().cpu().numpy()
         cam = pts @ w[:3, :3].T + w[:3, 3]
-        K = self.K.double().cpu().numpy()
+        K = self.renderer.K.double().cpu().numpy()
+        H, W = self.renderer.H, self.renderer.W
         z = cam[:, 2]
         front = z > 1e-6
         u = np.round(K[0, 0] * cam[front, 0] / z[front] + K[0, 2]).astype(np.int64)
         v = np.round(K[1, 1] * cam[front, 1] / z[front] + K[1, 2]).astype(np.int64)
         z = z[front]
-        inside = (u >= 0) & (u < self.W) & (v >= 0) & (v < self.H)
+        inside = (u >= 0) & (u < W) & (v >= 0) & (v < H)
         u, v, z = u[inside], v[inside], z[inside]
         d = depth.cpu().numpy()
         seen = np.abs(d[v, u] - z) < 0.05 * z
-        mask = np.zeros((self.H + 2, self.W + 2), dtype=np.bool_)
+        mask = np.zeros((H + 2, W + 2), dtype=np.bool_)
         for dy in (0, 1, 2):
             for dx in (0, 1, 2):
                 mask[v[seen] + dy, u[seen] + dx] = True

@@ -2,41 +2,36 @@
 
 Per frame (``System.step``): the pose is tracked (``bench.slam.tracking``). On a keyframe: Gaussians are
 added where the map is missing or wrong and the map is optimised over a window of keyframes
-(``bench.slam.mapping``), then the strategy's keep mask goes through ``GaussianMap.remove``."""
+(``bench.slam.mapping``), then the strategy's keep mask goes through ``GaussianMap.remove``.
+
+``System`` is made of parts, each an object with its own state that holds references to what it reads:
+``Renderer`` (the camera), ``KeyframeStore``, ``Tracking`` (with its ``LostDetector``), ``Mapping`` and
+``PruneDiagnostics``. ``System`` owns the map, the pose history and the prune itself, and passes
+``Mapping`` the prune context it scores the map with at the cap."""
 
 from __future__ import annotations
 
 import contextlib
-import random
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
-import numpy as np
 import torch
 
 from bench.datasets.base import Frame
 from bench.errors import ConfigError, StrategyError
 from bench.slam.config import SlamConfig
-from bench.slam.frontend import to_gray_u8
 from bench.slam.gaussians import GaussianMap
 from bench.slam.keyframes import KeyframeStore
-from bench.slam.lost import LostDetector
 from bench.slam.mapping import Mapping
 from bench.slam.prune_diagnostics import PruneDiagnostics
-from bench.slam.raster import EXTRA_STATS, RasterOutput, drawn_log_scales, rasterize, resolve_backend
+from bench.slam.raster import EXTRA_STATS, RasterOutput, resolve_backend
+from bench.slam.renderer import Renderer
 from bench.slam.residency import STORE_DIR, MapResidency
 from bench.slam.se3 import inverse, so3_log
-from bench.slam.strategy import (
-    READS_MAPPING_GRAD2D,
-    SCORE_VIEWS,
-    MappingContext,
-    PruneConfig,
-    PruneContext,
-    Strategy,
-)
+from bench.slam.strategy import READS_MAPPING_GRAD2D, SCORE_VIEWS, PruneConfig, PruneContext, Strategy
 from bench.slam.tracking import Tracking
 
 
@@ -58,12 +53,12 @@ class FrameResult:
     diag_s: float = 0.0  # time spent on those diagnostics (inside prune_s)
 
 
-class System(Tracking, Mapping, PruneDiagnostics):
+class System:
     """Owns the map, the keyframes and the pose history of one run; ``step`` takes one frame.
 
-    Tracking (``bench.slam.tracking``), mapping (``bench.slam.mapping``) and the prune diagnostics
-    (``bench.slam.prune_diagnostics``) are its halves; ``LostDetector`` (``bench.slam.lost``) judges each
-    tracked frame.
+    Its parts: ``renderer`` (``bench.slam.renderer``), ``keyframes`` (``bench.slam.keyframes``),
+    ``tracking`` (``bench.slam.tracking``; its ``lost``, ``bench.slam.lost``, judges each tracked frame),
+    ``mapping`` (``bench.slam.mapping``) and ``diagnostics`` (``bench.slam.prune_diagnostics``).
     """
 
     def __init__(
@@ -81,13 +76,11 @@ class System(Tracking, Mapping, PruneDiagnostics):
         """``prune`` is the pruning schedule, or just the shared keep ratio (the default schedule);
         ``keyframe_dir``: the folder of the keyframe store with ``slam.keyframes.residency=disk``."""
         self.prune = prune if isinstance(prune, PruneConfig) else PruneConfig(keep_ratio=float(prune))
-        self.cfg, self.strategy, self.keep_ratio, self.device = cfg, strategy, self.prune.keep_ratio, device
+        self.cfg, self.strategy, self.device = cfg, strategy, device
         # Adam's second moments and the gradients of far or faint Gaussians fall into float32's
         # denormal range, where CPU arithmetic is far slower; flushing them to zero changes
         # no result that matters and keeps the optimiser step from dominating a CPU run
         torch.set_flush_denormal(True)
-        self.K = K.to(device=device, dtype=torch.float32)
-        self.H, self.W = height, width
         self.map = GaussianMap(
             device, lrs=asdict(cfg.lrs), extra=strategy.extra_params(), state_dtypes=strategy.state_spec()
         )
@@ -96,72 +89,64 @@ class System(Tracking, Mapping, PruneDiagnostics):
         # sum of ||dL/d means2d|| over the mapping iterations that rendered a Gaussian, and those iterations
         # (3DGS's xyz_gradient_accum and denom), kept only for a strategy that reads them
         reads = frozenset(getattr(strategy, "reads", ()))
-        self._map_grad2d = READS_MAPPING_GRAD2D in reads
+        self.map_grad2d = READS_MAPPING_GRAD2D in reads
         if reads & set(EXTRA_STATS) and resolve_backend(cfg.raster_backend, device) == "gsplat":
             # said at the start, not at the first prune
             raise ConfigError(
                 f"slam.raster_backend=gsplat: statistics {', '.join(sorted(reads & set(EXTRA_STATS)))} "
                 "that the strategy reads are not implemented there (use slam.raster_backend=torch)"
             )
-        if self._map_grad2d:
+        if self.map_grad2d:
             self.map.state["_map_grad2d_sum"] = torch.empty(0, device=device)
             self.map.state["_map_grad2d_n"] = torch.empty(0, device=device)
         self.keyframes = KeyframeStore(cfg.keyframes, keyframe_dir)
+        self.renderer = Renderer(cfg, K, height, width, strategy, self.keyframes, device)
+        self.K, self.H, self.W = self.renderer.K, height, width  # [3, 3] float32 on the device; px
         self.poses: list[torch.Tensor] = []  # w2c per processed frame
         self.frames_since_kf = 0
-        self.lost = LostDetector(cfg)
-        # one generator per consumer, all from the run seed, so that a change in one (say, more
-        # keyframes) does not shift the draws of another
-        self._rng = random.Random(cfg.seed)  # keyframe sampling in mapping and refinement
-        self._densify_rng = np.random.default_rng([cfg.seed, 1])  # seeding-grid offsets per keyframe
-        self._ransac_rng = np.random.default_rng([cfg.seed, 2])  # RANSAC sample order (flow + PnP)
         self._timer = timer
-        ys, xs = torch.meshgrid(torch.arange(height, device=device), torch.arange(width, device=device), indexing="ij")
-        self._pix = torch.stack([xs, ys], -1).float()  # [H, W, 2]
-        self._flow_cfg = cfg.flow_pnp
-        self._gray: np.ndarray | None = None  # [H, W] uint8 of the frame being processed (flow_pnp)
-        self._prev_obs: tuple | None = None  # (gray [H, W] uint8, depth [H, W] float) of the last frame
-        self.init_source: list[str] = []  # per tracked frame: "flow_pnp" or "velocity"
-        # the frame being tracked: flow + PnP's inlier corners, world points [M, 3] and pixels [M, 2]
-        self._features: tuple[torch.Tensor, torch.Tensor] | None = None
         # called after each prune with (kf_idx, w2c, render before [RasterOutput], keep [N before] bool or None)
         self.on_prune: Callable[[int, torch.Tensor, RasterOutput, torch.Tensor | None], None] | None = None
-        # world points [M, 3] (numpy, so they stay out of the measured torch memory) of the pixels the
-        # prunes since the last densification opened: the next densification counts seeds landing there
-        self._holes: list[np.ndarray] = []
-        self._reseeded = 0  # seeds of the last densification that landed in those pixels
-        # slam.densify: what the last densification's budget and cap left out and removed (keyframes.csv), and
-        # the map's size after keyframe 0, where budget=taming's curve starts (checkpointed)
-        self._densify_dropped = self._cap_removed = 0
-        self._densify_start: int | None = None
-        # per tracked frame, what the loss detector reads: (frame, colour L1 on confident pixels,
-        # fraction of confident pixels, depth L1 in m on confident pixels with depth); a few floats per frame
-        self.track_log: list[tuple[int, float, float, float]] = []
         # slam.residency: the Gaussians on disk (bench/slam/residency.py); None while the policy is off
-        self._residency = MapResidency(cfg.residency) if cfg.residency.policy != "off" else None
+        self.residency = MapResidency(cfg.residency) if cfg.residency.policy != "off" else None
+        self.tracking = Tracking(cfg, self.map, self.keyframes, self.renderer, strategy, self.prune.grad_source, device)
+        self.diagnostics = PruneDiagnostics(cfg, self.map, self.renderer)
+        self.mapping = Mapping(
+            cfg,
+            self.map,
+            self.keyframes,
+            self.renderer,
+            strategy,
+            self.diagnostics,
+            self.residency,
+            self.prune_context,
+            self.map_grad2d,
+            device,
+        )
 
     def use_run_dir(self, out: Path) -> None:
         """Map residency writes its files under the run dir ``out`` (``map_store/``)."""
-        if self._residency is not None:
-            self._residency.use_dir(out / STORE_DIR)
+        if self.residency is not None:
+            self.residency.use_dir(out / STORE_DIR)
 
     def n_evicted(self) -> int:
         """Gaussians map residency holds on disk now (keyframes.csv ``n_evicted``)."""
-        return 0 if self._residency is None else self._residency.n_evicted()
+        return 0 if self.residency is None else self.residency.n_evicted()
 
     def restore_all(self) -> int:
         """Every Gaussian map residency holds on disk back in the map (before the final evaluation)."""
-        return 0 if self._residency is None else self._residency.restore_all(self.map)
+        return 0 if self.residency is None else self.residency.restore_all(self.map)
 
     @contextlib.contextmanager
     def whole_map(self) -> Iterator[None]:
         """Within: ``self.map`` is a copy of the whole map, the Gaussians map residency holds on disk
-        included (a milestone scores it); after, the live map is back as it was."""
-        if self._residency is None or not self._residency.on_disk:
+        included (a milestone scores it); after, the live map is back as it was. Only ``self.map`` and
+        ``render`` see the copy: the parts hold the live map, and none of them runs within."""
+        if self.residency is None or not self.residency.on_disk:
             yield
             return
         live = self.map
-        self.map = self._residency.whole_map(live)
+        self.map = self.residency.whole_map(live)
         try:
             yield
         finally:
@@ -175,28 +160,8 @@ class System(Tracking, Mapping, PruneDiagnostics):
         iteration: int = 0,
         extra: frozenset[str] = frozenset(),
     ) -> RasterOutput:
-        g = self.map
-        op = g.opacities
-        mask = self.strategy.render_mask(MappingContext(self.keyframes.n_made, iteration, g, g.state, training))
-        if mask is not None:
-            op = op * mask
-        return rasterize(
-            g.means,
-            drawn_log_scales(g.log_scales, self.cfg.isotropic),
-            g.quats,
-            op,
-            g.colors,
-            w2c,
-            self.K,
-            self.W,
-            self.H,
-            stats=stats,
-            depth_far_m=self.cfg.depth_far_m,
-            backend=self.cfg.raster_backend,
-            extra=extra,
-            antialiased=self.cfg.raster_antialias,
-            gsplat_stats=self.cfg.gsplat_stats,
-        )
+        """The map as it stands (the whole map within ``whole_map``) seen from ``w2c`` [4, 4]."""
+        return self.renderer.render(self.map, w2c, stats=stats, training=training, iteration=iteration, extra=extra)
 
     def _phase(self, name: str):
         return self._timer.phase(name) if self._timer is not None else contextlib.nullcontext()
@@ -211,16 +176,15 @@ class System(Tracking, Mapping, PruneDiagnostics):
     def step(self, frame: Frame) -> FrameResult:
         rgb, depth = self.observe(frame)
         t0 = time.perf_counter()
-        self._gray = to_gray_u8(rgb) if self.cfg.tracking_init == "flow_pnp" else None  # [H, W] uint8
+        self.tracking.begin_frame(rgb)
         if not self.poses:
             w2c = torch.eye(4, device=self.device)
             loss = 0.0
         else:
             with self._phase("tracking"):
-                w2c, loss = self._track(frame.index, rgb, depth)
+                w2c, loss = self.tracking.track(frame.index, rgb, depth, self.poses)
         t1 = time.perf_counter()
-        if self.cfg.tracking_init == "flow_pnp":
-            self._prev_obs = (self._gray, depth.cpu().numpy())
+        self.tracking.end_frame(depth)
         self.poses.append(w2c)
         self.frames_since_kf += 1
         result = FrameResult(w2c=w2c, is_keyframe=False, track_loss=loss, track_s=t1 - t0)
@@ -232,21 +196,21 @@ class System(Tracking, Mapping, PruneDiagnostics):
                 result.prune_s = time.perf_counter() - t1
         else:
             kf_idx = self.keyframes.add(frame.index, rgb, depth, w2c).kf
-            if self._residency is not None:  # before densification: a revisited street is back before it is seeded
-                self._residency.note_keyframe(kf_idx, w2c)
-                if self._residency.due(kf_idx):
+            if self.residency is not None:  # before densification: a revisited street is back before it is seeded
+                self.residency.note_keyframe(kf_idx, w2c)
+                if self.residency.due(kf_idx):
                     with self._phase("residency"):
-                        result.n_restored, _ = self._residency.check(self.map, w2c, self.K, (self.H, self.W))
+                        result.n_restored, _ = self.residency.check(self.map, w2c, self.K, (self.H, self.W))
             with self._phase("mapping"):
-                result.n_added = self._densify(rgb, depth, w2c, kf_idx)
-                result.diag["n_reseeded_holes"] = self._reseeded
-                result.diag["n_densify_dropped"] = self._densify_dropped
-                result.diag["n_cap_removed"] = self._cap_removed
-                mapped, fit = self._map(kf_idx, (rgb, depth, w2c))
+                result.n_added = self.mapping.densify(rgb, depth, w2c, kf_idx)
+                result.diag["n_reseeded_holes"] = self.mapping.reseeded
+                result.diag["n_densify_dropped"] = self.mapping.densify_dropped
+                result.diag["n_cap_removed"] = self.mapping.cap_removed
+                mapped, fit = self.mapping.map_keyframe(kf_idx, (rgb, depth, w2c))
                 result.diag["kf_map_iters"] = mapped
             t_fit = time.perf_counter()
             if fit is None:
-                self._fit_diagnostics(result.diag, rgb, depth, w2c)
+                self.diagnostics.fit(result.diag, rgb, depth, w2c)
             else:  # mapping's top-up scored the map as it stands: the same figures, not rendered twice
                 result.diag.update(fit)
             result.diag_s += time.perf_counter() - t_fit
@@ -278,11 +242,6 @@ class System(Tracking, Mapping, PruneDiagnostics):
             st = g.optimizer.state.get(group["params"][0])
             if st:
                 moments[group["name"]] = dict(st)
-        prev = (
-            None
-            if self._prev_obs is None
-            else [torch.from_numpy(self._prev_obs[0]), torch.from_numpy(self._prev_obs[1])]
-        )
         return {
             "params": {k: p.detach() for k, p in g.params.items()},  # no copies: a checkpoint must not raise the peak
             "requires_grad": {k: p.requires_grad for k, p in g.params.items()},
@@ -298,19 +257,14 @@ class System(Tracking, Mapping, PruneDiagnostics):
             },  # [K], [K, 4, 4], [K]
             "poses": _stack(self.poses),  # [F, 4, 4]
             "frames_since_kf": self.frames_since_kf,
-            "bad_frames": self.lost.bad_frames,
-            "depth_recent": torch.tensor(self.lost.depth_recent, dtype=torch.float64),  # [<= lost_baseline_frames]
-            "init_source": ",".join(self.init_source),
-            "prev_obs": prev,
-            "rng": _py_rng_state(self._rng),
-            "densify_rng": _np_gen_state(self._densify_rng),
-            "densify_start": self._densify_start,
-            "ransac_rng": _np_gen_state(self._ransac_rng),
-            # prune diagnostics: the opened pixels' world points awaiting the next densification [M, 3]
-            "holes": torch.from_numpy(np.concatenate(self._holes) if self._holes else np.zeros((0, 3))),
-            "track_log": torch.tensor(self.track_log, dtype=torch.float64).reshape(-1, 4),  # [F, 4]
+            # the parts' own state, each under the keys a checkpoint has always held: bad_frames, depth_recent,
+            # init_source, prev_obs, ransac_rng, track_log (tracking); rng, densify_rng, densify_start (mapping);
+            # holes (the prune diagnostics)
+            **self.tracking.state_dict(),
+            **self.mapping.state_dict(),
+            **self.diagnostics.state_dict(),
             # the Gaussians on disk travel in the checkpoint (MapResidency.state_dict says why)
-            **({} if self._residency is None else {"residency": self._residency.state_dict()}),
+            **({} if self.residency is None else {"residency": self.residency.state_dict()}),
         }
 
     def load_state_dict(self, sd: dict[str, Any], frame_at: Callable[[int], Frame]) -> None:
@@ -340,22 +294,14 @@ class System(Tracking, Mapping, PruneDiagnostics):
         anchor = kfs.get("submap_anchor")
         self.keyframes.submap_anchor = None if anchor is None else anchor.to(self.device)
         self.poses = [p.to(self.device) for p in sd["poses"]]
-        self.frames_since_kf, self.lost.bad_frames = sd["frames_since_kf"], sd["bad_frames"]
-        self.lost.depth_recent = sd["depth_recent"].tolist()
-        self.init_source = sd["init_source"].split(",") if sd["init_source"] else []
-        prev = sd["prev_obs"]
-        self._prev_obs = None if prev is None else (prev[0].numpy(), prev[1].numpy())
-        self._rng.setstate(_py_rng_from(sd["rng"]))
-        self._densify_rng.bit_generator.state = sd["densify_rng"]
-        self._densify_start = sd.get("densify_start")  # absent from checkpoints before slam.densify
-        self._ransac_rng.bit_generator.state = sd["ransac_rng"]
-        holes = sd["holes"].numpy()
-        self._holes = [holes] if len(holes) else []
-        self.track_log = [(int(f), c, s, d) for f, c, s, d in sd["track_log"].tolist()]
-        if self._residency is not None:
+        self.frames_since_kf = sd["frames_since_kf"]
+        self.tracking.load_state_dict(sd)
+        self.mapping.load_state_dict(sd)
+        self.diagnostics.load_state_dict(sd)
+        if self.residency is not None:
             if "residency" not in sd:
                 raise ValueError("map residency: expected its store in the checkpoint, found none")
-            self._residency.load_state_dict(sd["residency"])
+            self.residency.load_state_dict(sd["residency"])
 
     def _is_keyframe(self, w2c: torch.Tensor) -> bool:
         if not self.keyframes:
@@ -376,7 +322,7 @@ class System(Tracking, Mapping, PruneDiagnostics):
             out = self.render(w2c, stats=True)
         is_new = self.map.birth_kf == kf_idx
         candidates = (out.tile_id >= 0) & ~is_new
-        ctx = self._prune_context(kf_idx, out, is_new, candidates)
+        ctx = self.prune_context(kf_idx, out, is_new, candidates)
         keep = self.strategy.after_mapping(ctx)
         if result is not None and ctx.views_used:
             result.diag["n_score_views"] = len(ctx.views_used)
@@ -391,11 +337,11 @@ class System(Tracking, Mapping, PruneDiagnostics):
             self.on_prune(kf_idx, w2c, out, keep)
         if result is not None:
             t0 = time.perf_counter()
-            self._prune_diagnostics(result.diag, out, candidates, keep, n_removed, w2c, depth)
+            self.diagnostics.record(result.diag, out, candidates, keep, n_removed, w2c, depth)
             result.diag_s += time.perf_counter() - t0
         return n_removed, n_candidates
 
-    def _prune_context(
+    def prune_context(
         self,
         kf_idx: int,
         out: RasterOutput,
@@ -404,7 +350,7 @@ class System(Tracking, Mapping, PruneDiagnostics):
     ) -> PruneContext:
         """What a strategy's prune (``after_mapping``) and its score at the cap (``cap_score``) read: ``out`` the
         stats=True render of the map, ``is_new`` and ``candidates`` [N] each; the tracking gradient's mean per
-        Gaussian from the map's state."""
+        Gaussian from the map's state. ``Mapping`` calls it for the score at the cap."""
         st = self.map.state
         grad_mean = st["_track_grad_sum"] / st["_track_grad_n"].clamp_min(1)
         return PruneContext(
@@ -415,20 +361,20 @@ class System(Tracking, Mapping, PruneDiagnostics):
             grad_mean,
             is_new,
             candidates,
-            self.keep_ratio,
+            self.prune.keep_ratio,
             (self.H, self.W),
             self.prune.target_count((self.H, self.W)),
-            renderer=self._score_views,
-            mapping_grad2d=(st["_map_grad2d_sum"], st["_map_grad2d_n"]) if self._map_grad2d else None,
+            renderer=self.score_views,
+            mapping_grad2d=(st["_map_grad2d_sum"], st["_map_grad2d_n"]) if self.map_grad2d else None,
             seed=self.cfg.seed,
         )
 
-    def _score_views(self, which: str, extra: frozenset[str]):
+    def score_views(self, which: str, extra: frozenset[str]):
         """PruneContext.render_views: (keyframe index, render) of each view ``which`` selects."""
         if which not in SCORE_VIEWS:
             raise StrategyError(f"score views: expected one of {', '.join(SCORE_VIEWS)}, found {which!r}")
         held = [(kf.kf, kf) for kf in self.keyframes]  # a keyframe window holds only the newest
-        if which == "window":  # the views mapping optimises over (bench.slam.mapping._map)
+        if which == "window":  # the views mapping optimises over (bench.slam.mapping.Mapping.map_keyframe)
             held = held[::-1][: self.cfg.mapping_window or len(held)][::-1]
         elif which == "current":
             held = held[-1:]
@@ -445,7 +391,7 @@ class System(Tracking, Mapping, PruneDiagnostics):
     def disk_bytes(self) -> dict[str, int]:
         """Exact bytes of the files the run holds on disk now, by part: the Gaussian state (map residency)
         and the keyframe store."""
-        state = self._residency.disk_bytes() if self._residency is not None else 0
+        state = self.residency.disk_bytes() if self.residency is not None else 0
         return {"state": int(state), "keyframes": self.keyframes.disk_bytes()}
 
 
@@ -462,17 +408,3 @@ def index_ranges(indices: list[int]) -> str:
 
 def _stack(mats: list[torch.Tensor]) -> torch.Tensor:
     return torch.stack(mats) if mats else torch.empty(0, 4, 4)
-
-
-def _py_rng_state(rng: random.Random) -> list:
-    """``random.Random`` state as plain values and one tensor (what ``torch.load(weights_only=True)`` reads)."""
-    version, internal, gauss = rng.getstate()
-    return [version, torch.tensor(internal, dtype=torch.int64), gauss]  # 625 words < 2**32
-
-
-def _py_rng_from(state: list) -> tuple:
-    return (state[0], tuple(state[1].tolist()), state[2])
-
-
-def _np_gen_state(gen: np.random.Generator) -> dict[str, Any]:
-    return cast(dict[str, Any], gen.bit_generator.state)  # a dict of str and int: loads with weights_only=True

@@ -12,7 +12,7 @@ from bench.report.collect import collect
 from bench.report.figures.make import make_plots
 from bench.report.figures.runs import seed_band
 from bench.report.style import COLOURS, MAX_SERIES, RATIO_STYLES, panel_groups, ratio_style, strategy_colour
-from bench.report.tables import Variant
+from bench.report.variants import Variant
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

@@ -10,7 +10,7 @@ import pytest
 
 from bench.report.figures.runs import distance_driven
 from bench.report.route_scale import _answer, _reference_length, run_slopes, sequence_lengths
-from bench.report.tables import variants
+from bench.report.variants import variants
 
 
 def test_slopes_are_per_100_m_and_skip_the_first_keyframe() -> None:

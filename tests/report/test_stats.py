@@ -102,7 +102,7 @@ def test_a_single_seed_sweep_says_it_has_no_noise_estimate(tmp_path, make_run):
 
 def test_per_seed_points_average_the_same_sequences_as_the_mean(report):
     from bench.report.figures.ratio import per_seed_average
-    from bench.report.tables import variant_runs, variants
+    from bench.report.variants import variant_runs, variants
 
     kitti = report.runs[report.runs["dataset"] == "kitti"]
     none = next(v for v in variants(kitti) if v.strategy == "none")

@@ -9,10 +9,11 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from bench.report.cells import Table
 from bench.report.collect import collect
 from bench.report.paper import load_paper_tables
 from bench.report.render import format_cell, to_markdown
-from bench.report.tables import Table, build_tables
+from bench.report.tables import build_tables
 
 SHARED_PAPER = Path(__file__).resolve().parents[2].parent / "shared" / "paper" / "pocket_slam_tables.csv"
 

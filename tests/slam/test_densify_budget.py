@@ -207,7 +207,7 @@ def test_a_resumed_run_keeps_the_budget_curve(seq):
     buf.seek(0)
     resumed = _system(seq, load_strategy("pocket", {}), **densify)
     resumed.load_state_dict(torch.load(buf, weights_only=True), lambda i: seq[i])
-    assert resumed._densify_start == first._densify_start is not None
+    assert resumed.mapping.densify_start == first.mapping.densify_start is not None
     for i in range(2, len(seq)):
         resumed.step(seq[i])
     assert torch.equal(resumed.map.means, straight.map.means)

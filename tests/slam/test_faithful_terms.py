@@ -71,10 +71,10 @@ def test_reprojection_term_is_zero_at_the_pose_that_made_it_and_grows_off_it(seq
     pts = torch.tensor([[0.5, -0.2, 6.0], [-1.0, 0.3, 9.0], [2.0, 0.5, 12.0]])
     cam = pts @ seq.K.T
     uv = cam[:, :2] / cam[:, 2:]
-    assert float(s._reprojection_px((pts, uv), w2c)) == pytest.approx(0.0, abs=1e-4)
+    assert float(s.tracking._reprojection_px((pts, uv), w2c)) == pytest.approx(0.0, abs=1e-4)
     back = torch.eye(4)
     back[2, 3] = 0.5  # the camera half a metre behind
-    assert float(s._reprojection_px((pts, uv), back)) > 0.5  # px, at 160x96
+    assert float(s.tracking._reprojection_px((pts, uv), back)) > 0.5  # px, at 160x96
 
 
 def test_feature_term_changes_tracking_only_when_on(seq):
@@ -98,7 +98,7 @@ def test_depth_outlier_mask_drops_a_planted_outlier_and_keeps_pixels_without_dep
     with torch.no_grad():
         out = s.render(torch.eye(4))
     mask = out.alpha > s.cfg.silhouette_min
-    keep = s._depth_inliers(out, depth, mask)
+    keep = s.tracking._depth_inliers(out, depth, mask)
     assert not keep[10, 10] and keep[20, 20]
     assert keep[mask & (depth > 0)].float().mean() > 0.5
 

@@ -75,7 +75,7 @@ def test_flow_pnp_is_the_default_and_used_on_textured_frames():
     s = System(cfg, seq.K, seq.height, seq.width, Strategy(), 0.4, torch.device("cpu"))
     for f in seq:
         s.step(f)
-    assert s.init_source == ["flow_pnp", "flow_pnp"]
+    assert s.tracking.init_source == ["flow_pnp", "flow_pnp"]
 
 
 def test_system_falls_back_to_velocity_without_corners():
@@ -90,7 +90,7 @@ def test_system_falls_back_to_velocity_without_corners():
     s = System(cfg, seq.K, seq.height, seq.width, Strategy(), 0.4, torch.device("cpu"))
     for f in seq:
         s.step(f)
-    assert s.init_source == ["velocity", "velocity"]
+    assert s.tracking.init_source == ["velocity", "velocity"]
 
 
 @pytest.mark.parametrize(

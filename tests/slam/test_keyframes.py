@@ -109,8 +109,8 @@ def test_a_system_with_a_window_maps_refines_and_scores_over_the_keyframes_it_ho
     results = [s.step(seq[i]) for i in range(4)]
     assert [r.keyframe_index for r in results] == [0, 1, 2, 3]  # numbered over the drive, not by what is held
     assert [kf.kf for kf in s.keyframes] == [2, 3] and s.keyframes.n_made == 4
-    assert [i for i, _ in s._score_views("held_keyframes", frozenset())] == [2, 3]
-    s.refine(2)
+    assert [i for i, _ in s.score_views("held_keyframes", frozenset())] == [2, 3]
+    s.mapping.refine(2)
     assert s.disk_bytes() == {"state": 0, "keyframes": s.keyframes.disk_bytes()}
     assert s.keyframe_store_bytes() == 2 * POSE_BYTES
 

@@ -35,8 +35,9 @@ def _system(schedule: str) -> tuple[System, object]:
 def test_mapping_runs_on_the_first_keyframe_only_when_asked(schedule, monkeypatch):
     system, seq = _system(schedule)
     calls: list[int] = []
-    optimize = system._optimize
-    monkeypatch.setattr(system, "_optimize", lambda kf, iters, pick: (calls.append(kf), optimize(kf, iters, pick)))
+    mapper = system.mapping
+    optimize = mapper._optimize
+    monkeypatch.setattr(mapper, "_optimize", lambda kf, iters, pick: (calls.append(kf), optimize(kf, iters, pick)))
     results = [system.step(seq[i]) for i in range(len(seq))]
     assert all(r.is_keyframe for r in results)
     assert calls == ([0] if schedule == "first" else [0, 1, 2, 3])
@@ -87,10 +88,11 @@ def test_mapping_draw_decides_the_newest_keyframes_share(draw, monkeypatch):
     system = System(cfg, seq.K, seq.height, seq.width, load_strategy("none", {}), 1.0, torch.device("cpu"))
     for i in range(4):
         system.step(seq[i])
-    system.cfg = dataclasses.replace(system.cfg, mapping_draw=draw, mapping_iters=400)
+    mapper = system.mapping
+    mapper.cfg = dataclasses.replace(system.cfg, mapping_draw=draw, mapping_iters=400)
     drawn: list[int] = []
-    monkeypatch.setattr(system, "_optimize", lambda kf, iters, pick: drawn.extend(pick(it).kf for it in range(iters)))
-    system._map(3)
+    monkeypatch.setattr(mapper, "_optimize", lambda kf, iters, pick: drawn.extend(pick(it).kf for it in range(iters)))
+    mapper.map_keyframe(3)
     newest = sum(k == 3 for k in drawn) / len(drawn)
     if draw == "alternate":
         assert newest == 0.5 and drawn[0::2] == [3] * 200

@@ -187,7 +187,7 @@ def drives(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[System, 
         def true_pose(frame_index: int, *_args) -> tuple[torch.Tensor, float]:
             return inverse(inverse(c2w0) @ seq[frame_index].gt_c2w.float()), 0.0
 
-        s._track = true_pose  # type: ignore[method-assign]
+        s.tracking.track = true_pose  # type: ignore[method-assign]
         results = [s.step(seq[i]) for i in order]
         out[policy] = (s, results, seq)
     return out

@@ -56,10 +56,10 @@ def test_refine_fits_the_keyframes_better_without_adding_gaussians(seq):
     for i in range(3):
         s.step(seq[i])
     n, before = len(s.map), _keyframe_l1(s)
-    s.refine(30)
+    s.mapping.refine(30)
     assert len(s.map) == n
     assert _keyframe_l1(s) < 0.9 * before, (before, _keyframe_l1(s))
-    s.refine(0)  # a no-op, not an error
+    s.mapping.refine(0)  # a no-op, not an error
 
 
 def test_refine_decays_every_rate_to_its_final_fraction_and_restores_mapping_s(seq, monkeypatch):
@@ -76,7 +76,7 @@ def test_refine_decays_every_rate_to_its_final_fraction_and_restores_mapping_s(s
         return step(*a, **k)
 
     monkeypatch.setattr(opt, "step", spy)
-    s.refine(5)
+    s.mapping.refine(5)
     assert len(seen) == 5
     for name, lr in base.items():
         assert seen[0][name] == pytest.approx(lr)
@@ -133,12 +133,13 @@ def _track_from(s: System, seq, j: int, kick_m: float) -> float:
     kick = torch.eye(4)
     kick[0, 3] = kick_m
     rgb, depth = s.observe(seq[j])
-    recent, bad = list(s.lost.depth_recent), s.lost.bad_frames
+    lost = s.tracking.lost
+    recent, bad = list(lost.depth_recent), lost.bad_frames
     try:
-        s._track(j, rgb, depth, init=kick @ gt)
+        s.tracking.track(j, rgb, depth, s.poses, init=kick @ gt)
     finally:
-        s.lost.depth_recent, s.lost.bad_frames = recent, bad
-    return s.track_log[-1][1]
+        lost.depth_recent, lost.bad_frames = recent, bad
+    return s.tracking.track_log[-1][1]
 
 
 def test_depth_check_reads_a_metre_well_above_new_street(mapped_drive):
@@ -152,13 +153,14 @@ def test_depth_check_reads_a_metre_well_above_new_street(mapped_drive):
         _track_from(s, seq, 11, 0.0)
     except TrackingLost:
         pass
-    true_l1 = s.track_log[-1][3]
+    log = s.tracking.track_log
+    true_l1 = log[-1][3]
     for kick_m in (1.0, -1.0):
         with pytest.raises(TrackingLost, match="depth residual"):
             _track_from(s, seq, 11, kick_m)
-        assert s.track_log[-1][3] > 1.5 * true_l1, (s.track_log[-1], true_l1)  # a metre reads well above new street
+        assert log[-1][3] > 1.5 * true_l1, (log[-1], true_l1)  # a metre reads well above new street
         # why not the colour check: a metre sideways leaves the colour L1 far below its threshold
-        assert s.track_log[-1][1] < s.cfg.lost_residual / 2, s.track_log[-1]
+        assert log[-1][1] < s.cfg.lost_residual / 2, log[-1]
 
 
 def test_lost_check_is_a_checked_option():
@@ -176,6 +178,29 @@ def test_checkpoint_state_carries_the_lost_detector(mapped_drive):
     buf.seek(0)
     back = System(s.cfg, seq.K, seq.height, seq.width, Strategy(), 0.4, torch.device("cpu"))
     back.load_state_dict(torch.load(buf, weights_only=True), seq.__getitem__)
-    assert len(s.lost.depth_recent) == 6
-    assert back.lost.depth_recent == s.lost.depth_recent and back.lost.bad_frames == s.lost.bad_frames
-    assert back.track_log == s.track_log and back.lost.depth_threshold_m() == s.lost.depth_threshold_m()
+    lost, back_lost = s.tracking.lost, back.tracking.lost
+    assert len(lost.depth_recent) == 6
+    assert back_lost.depth_recent == lost.depth_recent and back_lost.bad_frames == lost.bad_frames
+    assert back.tracking.track_log == s.tracking.track_log and back_lost.depth_threshold_m() == lost.depth_threshold_m()
+
+
+def test_the_system_is_made_of_parts_that_hold_what_they_read_not_the_system(seq):
+    """``System`` is no mixin: tracking, mapping and the prune diagnostics are objects of their own, which hold
+    the map, keyframe store, renderer and config they read; the one way back to the system is the prune
+    context mapping asks for at the cap (``Mapping.prune_context``), a bound method passed in."""
+    s = _system(seq)
+    assert System.__mro__ == (System, object)
+    parts = {"renderer": s.renderer, "tracking": s.tracking, "mapping": s.mapping, "diagnostics": s.diagnostics}
+    for name, part in parts.items():
+        held = vars(part)
+        assert not any(value is s for value in held.values()), name
+        assert held.get("map", s.map) is s.map and held.get("keyframes", s.keyframes) is s.keyframes, name
+        assert held.get("renderer", s.renderer) is s.renderer and held.get("cfg", s.cfg) is s.cfg, name
+    back = {
+        (name, key)
+        for name, part in parts.items()
+        for key, v in vars(part).items()
+        if getattr(v, "__self__", None) is s
+    }
+    assert back == {("mapping", "prune_context")}
+    assert s.mapping.diagnostics is s.diagnostics and s.tracking.lost is not None

@@ -21,7 +21,7 @@ from bench.report.style import (
     series_label,
     strategy_colour,
 )
-from bench.report.tables import Variant, variant_runs, variants
+from bench.report.variants import Variant, variant_runs, variants
 
 DENSITY_CELLS = 160  # heatmap cells along the longer image side (Fig. 4 is a coarse heatmap too)
 

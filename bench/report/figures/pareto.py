@@ -20,7 +20,7 @@ from bench.report.style import (
     strategy_colour,
     strategy_keys,
 )
-from bench.report.tables import Variant, variant_runs, variants
+from bench.report.variants import Variant, variant_runs, variants
 
 
 def _front(points: list[tuple[float, float]], lower_is_better: bool) -> list[tuple[float, float]]:

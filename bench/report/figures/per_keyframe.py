@@ -23,7 +23,7 @@ from bench.report.style import (
     strategy_colour,
     strategy_keys,
 )
-from bench.report.tables import variant_runs, variants
+from bench.report.variants import variant_runs, variants
 
 # keyframes.csv memory columns as a reader knows them
 PROBE_NAMES: dict[str, str] = {

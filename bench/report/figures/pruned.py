@@ -16,7 +16,7 @@ from bench.report.style import (
     series_label,
     strategy_colour,
 )
-from bench.report.tables import Variant, variant_runs, variants
+from bench.report.variants import Variant, variant_runs, variants
 from bench.run.figures import pruned_run as viz
 
 PRUNED_GLOB = viz.PRUNED_GLOB

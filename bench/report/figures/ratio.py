@@ -21,7 +21,7 @@ from bench.report.style import (
     new_figure,
     strategy_colour,
 )
-from bench.report.tables import variant_runs, variants
+from bench.report.variants import variant_runs, variants
 
 DODGE = 0.008  # keep-ratio offset between strategies run at one ratio, so their bars do not overlap
 

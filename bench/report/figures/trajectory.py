@@ -31,7 +31,7 @@ from bench.report.style import (
     strategy_colour,
     strategy_keys,
 )
-from bench.report.tables import Variant, variant_runs, variants
+from bench.report.variants import Variant, variant_runs, variants
 
 
 def read_trajectory(path: Path, warn: Warn) -> Trajectory | None:
