@@ -24,7 +24,8 @@ class Study:
 
     name: str
     sweeps: dict[str, list[str]]
-    report: dict[str, Any] = field(default_factory=dict)  # out (the folder), paper, baseline, format, dpi, planned, regime
+    # out (the folder), paper, baseline, format, dpi, planned, regime
+    report: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
