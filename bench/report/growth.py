@@ -104,7 +104,8 @@ def run_table(runs: pd.DataFrame, baseline: str = "none") -> pd.DataFrame:
                 "gaussians_peak": row.get("gaussians_peak"),
                 "gaussians_added_total": row.get("gaussians_added_total"),
                 "peak_mem_mib": peak,
-                "peak_ratio": None if base is None or pd.isna(peak) else float(peak) / base,
+                # a lost run's peak is the peak up to where tracking was lost: no ratio to a whole run's
+                "peak_ratio": None if base is None or pd.isna(peak) or row["status"] != "ok" else float(peak) / base,
                 "baseline_path": base_path,
                 "ate_rmse_m": row.get("ate_rmse_m"),
                 "psnr_db": row.get("psnr_db"),
@@ -112,7 +113,14 @@ def run_table(runs: pd.DataFrame, baseline: str = "none") -> pd.DataFrame:
                 "path": row["path"],
             }
         )
-    return pd.DataFrame(rows)
+    table = pd.DataFrame(rows)
+    if table.empty:
+        return table
+    # each cell's baseline first, then the other rows by label, seeds in order
+    order = table.assign(_base=table["strategy"] != baseline).sort_values(
+        ["cell", "_base", "label", "seed"], kind="stable"
+    )
+    return order.drop(columns="_base").reset_index(drop=True)
 
 
 def _numbers(values: pd.Series) -> list[float]:

@@ -64,6 +64,7 @@ def test_each_run_is_read_against_its_cell_and_seed(runs):
     assert table.loc["runs/pocketN_tar 166223/Mpx, floor 1/px/4/0", "peak_ratio"] == pytest.approx(0.5)
     assert table.loc["runs/pocketN_tar 166223/Mpx, floor 1/px/4/1", "peak_ratio"] == pytest.approx(0.55)
     assert table.loc["runs/none/4/0", "peak_ratio"] == 1.0 and table.loc["runs/none/2/0", "peak_ratio"] == 1.0
+    assert pd.isna(table.loc["runs/pocketN_tar 166223/Mpx/4/0", "peak_ratio"])  # lost: a part of a run, no ratio
     # the two budgets and the chance rank are three rows, not seeds of one
     pocket = method_name("pocket")
     assert set(table.loc[table["strategy"] == "pocket", "label"]) == {

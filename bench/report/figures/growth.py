@@ -58,7 +58,7 @@ def plot_ratio_vs_keyframes(
     handles = [key(label, colour, ls) for label, (colour, ls) in styles.items()]
     handles.append(key(run["label"], PAPER_COLOUR, "", marker="*"))
     legend_outside(fig, handles)
-    fig_title(fig, "Peak so far against the keyframes held (seed 0 solid, others paler)")
+    fig_title(fig, "Peak so far by keyframes held (seed 0 dark)")
     return save_figure(fig, out / "regime_ratio_vs_keyframes.png")
 
 
@@ -101,5 +101,5 @@ def plot_ratio_vs_density(runs: pd.DataFrame, out: Path, baseline: str = "none")
     handles += [key(cell, "black", "", marker=MARKERS[i % len(MARKERS)]) for i, cell in enumerate(cells)]
     handles.append(key(run["label"], PAPER_COLOUR, "", marker="*"))
     legend_outside(fig, handles)
-    fig_title(fig, "Peak ratio against growth density (open: lost; larger: more keyframes)")
+    fig_title(fig, "Peak ratio by growth density (larger: more keyframes)")
     return save_figure(fig, out / "regime_ratio_vs_density.png")
