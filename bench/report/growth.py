@@ -306,7 +306,8 @@ def regime_markdown(runs: pd.DataFrame, baseline: str = "none") -> str:
 
 def keyframe_ratios(runs: pd.DataFrame, keyframes: dict[str, pd.DataFrame], baseline: str = "none") -> pd.DataFrame:
     """Per keyframe of each pruned run: the peak so far against its baseline run's peak so far at the same
-    keyframe index (columns label, cell, seed, n_kf_held, ratio). Only runs with a same-seed baseline run."""
+    keyframe index (columns label, strategy, cell, seed, n_kf_held, ratio). Only runs with a same-seed baseline
+    run."""
     table = run_table(runs, baseline)
     rows = []
     for _, row in table.iterrows():
@@ -326,10 +327,11 @@ def keyframe_ratios(runs: pd.DataFrame, keyframes: dict[str, pd.DataFrame], base
             rows.append(
                 {
                     "label": row["label"],
+                    "strategy": row["strategy"],
                     "cell": row["cell"],
                     "seed": row["seed"],
                     "n_kf_held": k["n_kf_held"],
                     "ratio": k["so_far"] / k["base_so_far"],
                 }
             )
-    return pd.DataFrame(rows, columns=["label", "cell", "seed", "n_kf_held", "ratio"])
+    return pd.DataFrame(rows, columns=["label", "strategy", "cell", "seed", "n_kf_held", "ratio"])

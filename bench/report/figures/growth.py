@@ -37,8 +37,7 @@ def plot_ratio_vs_keyframes(
     curves = keyframe_ratios(runs, keyframes, baseline)
     if curves.empty:
         return None
-    table = run_table(runs, baseline)
-    strategies = dict(zip(table["label"], table["strategy"], strict=False))
+    strategies = dict(zip(curves["label"], curves["strategy"], strict=False))
     cells = list(dict.fromkeys(curves["cell"]))
     fig = new_figure(4.2 * len(cells) + 4.8, 3.6)  # the legend's long labels beside the panels
     axes = fig.subplots(1, len(cells), squeeze=False)[0]

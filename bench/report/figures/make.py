@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
@@ -32,20 +35,21 @@ def make_plots(
     """Every figure the runs support, in each of ``formats``; finished runs only. ``keyframes`` and
     ``milestones`` (run path -> its rows) stand in for run dirs that are gone (``redraw``).
     ``long_drives``: also memory against distance and accuracy at the milestones (``eval.at_frames``)."""
+    with _drawing(formats, dpi, keyframes=keyframes or {}, milestones=milestones or {}, long_drives=long_drives):
+        first = _make_plots(runs, out, warn)
+    return [p.with_suffix(f".{ext}") for p in first for ext in formats]
+
+
+@contextmanager
+def _drawing(formats: tuple[str, ...], dpi: int, **extra: Any) -> Iterator[None]:
+    """``OUTPUT`` set to these formats and dpi (and ``extra``) for one report's figures, then put back."""
     check_figure_options(formats, dpi)
     previous = dict(OUTPUT)
-    OUTPUT.update(
-        formats=tuple(formats),
-        dpi=int(dpi),
-        keyframes=keyframes or {},
-        milestones=milestones or {},
-        long_drives=long_drives,
-    )
+    OUTPUT.update(formats=tuple(formats), dpi=int(dpi), **extra)
     try:
-        first = _make_plots(runs, out, warn)
+        yield
     finally:
         OUTPUT.update(previous)
-    return [p.with_suffix(f".{ext}") for p in first for ext in formats]
 
 
 def _make_plots(runs: pd.DataFrame, out: Path, warn: Warn) -> list[Path]:
@@ -79,14 +83,9 @@ def regime_plots(
     dpi: int = DPI,
 ) -> list[Path]:
     """The regime study's figures (``bench.report.figures.growth``), in each of ``formats``."""
-    check_figure_options(formats, dpi)
-    previous = dict(OUTPUT)
-    OUTPUT.update(formats=tuple(formats), dpi=int(dpi))
-    try:
+    with _drawing(formats, dpi):
         first = [
             plot_ratio_vs_keyframes(runs, keyframes, out, baseline),
             plot_ratio_vs_density(runs, out, baseline),
         ]
-    finally:
-        OUTPUT.update(previous)
     return [p.with_suffix(f".{ext}") for p in first if p is not None for ext in formats]
