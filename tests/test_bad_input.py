@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import os
 import shutil
 import sys
 from dataclasses import dataclass, field
@@ -478,4 +479,10 @@ def test_input_fingerprint_follows_content_and_images(tmp_path: Path) -> None:
     calib.write_text("P0: 1 2 4")  # same size, new content
     assert input_fingerprint([calib, img])[str(calib)] != first[str(calib)]
     img.write_bytes(b"png2")
-    assert input_fingerprint([calib, img])["images (1 files)"] != first["images (1 files)"]
+    second = input_fingerprint([calib, img])["images (1 files)"]
+    assert second != first["images (1 files)"]
+    img.write_bytes(b"pnh2")  # same size: the content decides, not the size
+    assert input_fingerprint([calib, img])["images (1 files)"] != second
+    stamp = input_fingerprint([calib, img])["images (1 files)"]
+    os.utime(img, (10**9, 10**9))  # a copy or remount changes the mtime alone: the same input, no redo
+    assert input_fingerprint([calib, img])["images (1 files)"] == stamp

@@ -15,17 +15,21 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-SMALL_FILE_BYTES = 1 << 20  # text files (calib, lists, ground truth) are hashed; larger ones stat'ed
+SMALL_FILE_BYTES = 1 << 20  # text files (calib, lists, ground truth) keep a digest each; larger ones share one
 FINISHED = ("ok", "lost")  # statuses a rerun keeps; failed and interrupted runs are redone
 
 
 def input_fingerprint(paths: Iterable[Path]) -> dict[str, str]:
-    """{name: digest}: small text files by content, images as one digest of (name, size, mtime).
+    """{name: digest}: small text files one digest each, images (and other large files) one digest of their
+    names, sizes and contents together.
 
-    Images are stat'ed, not read: hashing thousands of frames would cost more than opening them.
+    Contents, not modification times: a dataset copied to a cluster's scratch disk, restored from a backup
+    or remounted between sessions keeps its bytes but not its mtimes, and with mtimes in the key every
+    finished run of a long study was redone. The run reads every frame anyway; hashing them adds a small
+    part of that read (BLAKE2b, which is faster than SHA-256 here and as good for telling files apart).
     """
     out: dict[str, str] = {}
-    images = hashlib.sha256()
+    images = hashlib.blake2b(digest_size=16)
     n_images = 0
     for path in paths:
         path = Path(path)
@@ -35,13 +39,22 @@ def input_fingerprint(paths: Iterable[Path]) -> dict[str, str]:
             out[str(path)] = "missing"
             continue
         if path.suffix.lower() in (".png", ".jpg", ".jpeg") or st.st_size > SMALL_FILE_BYTES:
-            images.update(f"{path}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
+            content = _content_digest(path)
+            images.update(f"{path}\0{st.st_size}\0{content}\n".encode())
             n_images += 1
         else:
             out[str(path)] = hashlib.sha256(path.read_bytes()).hexdigest()[:16]
     if n_images:
         out[f"images ({n_images} files)"] = images.hexdigest()[:16]
     return out
+
+
+def _content_digest(path: Path) -> str:
+    digest = hashlib.blake2b()
+    with path.open("rb") as fh:  # hashlib.file_digest is Python 3.11+; the package supports 3.10
+        while chunk := fh.read(1 << 20):
+            digest.update(chunk)
+    return digest.hexdigest()
 
 
 def resume_key(config_hash: str, code: dict[str, Any], inputs: dict[str, str]) -> dict[str, Any]:
