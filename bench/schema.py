@@ -46,7 +46,7 @@ RUN_FIELDS: tuple[Field, ...] = (
     Field("slam_preset", "", "`slam.name`, the backend preset (runs of different presets never pool)", "text"),
     Field("config_hash", "", "hash of the resolved config (what resume compares)", "text"),
     Field("code_version", "", "commit, code-tree hash, dirty flag, diff hash (resume ignores the commit)", "object"),
-    Field("inputs", "", "input-file fingerprint: text files by content, images by name, size and content (not mtime)", "object"),
+    Field("inputs", "", "input-file fingerprint: text and image files by content (not mtime)", "object"),
 )
 
 KEYFRAME_FIELDS: tuple[Field, ...] = (

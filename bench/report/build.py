@@ -156,7 +156,7 @@ def _make_report(
     )
     if regime:  # the regime study's table and figures (bench/report/growth.py)
         files.append(out / "regime.md")
-        files[-1].write_text(regime_markdown(runs, baseline), encoding="utf-8")
+        files[-1].write_text(regime_markdown(runs, baseline, keyframes), encoding="utf-8")
         files += regime_plots(runs, keyframes, out, baseline, formats, dpi)
     return ReportResult(out, runs, tables, files, collection.skipped, warnings)
 

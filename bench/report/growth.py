@@ -84,8 +84,28 @@ def _baseline_peak(done: pd.DataFrame, row: pd.Series, baseline: str) -> tuple[f
     return float(same["peak_mem_mib"].mean()), None
 
 
-def run_table(runs: pd.DataFrame, baseline: str = "none") -> pd.DataFrame:
-    """One row per finished run: its cell, label, seed, descriptors, peak, ratio to the baseline, accuracy, FPS."""
+def in_view_share(keyframes: pd.DataFrame | None) -> float | None:
+    """The mean, over a run's prunes (keyframes after the first), of the share of the map a strategy may prune: the
+    candidates (in view, not new) over the Gaussians older than this keyframe (after its densification, before its
+    prune: ``n_gaussians + n_pruned - n_added``). None without those columns or rows.
+
+    Why it is a regime descriptor: a prune reaches only what is in view, so where the camera keeps seeing the same
+    place (a room) a per-view budget bounds the whole map, and where it leaves things behind (a drive) the map grows
+    with the path whatever the budget."""
+    need = ("kf", "n_gaussians", "n_pruned", "n_added", "n_candidates")
+    if keyframes is None or any(c not in keyframes.columns for c in need):
+        return None
+    k = keyframes[keyframes["kf"] > 0]
+    old = k["n_gaussians"] + k["n_pruned"] - k["n_added"]
+    share = (k["n_candidates"] / old.where(old > 0)).dropna()
+    return float(share.mean()) if len(share) else None
+
+
+def run_table(
+    runs: pd.DataFrame, baseline: str = "none", keyframes: dict[str, pd.DataFrame] | None = None
+) -> pd.DataFrame:
+    """One row per finished run: its cell, label, seed, descriptors, peak, ratio to the baseline, accuracy, FPS.
+    ``keyframes`` (each run's keyframes.csv by its path), where given, adds ``in_view_share``."""
     done = labelled(runs)
     rows = []
     for _, row in done.iterrows():
@@ -101,6 +121,7 @@ def run_table(runs: pd.DataFrame, baseline: str = "none") -> pd.DataFrame:
                 "num_frames": row.get("num_frames"),
                 "num_keyframes": row.get("num_keyframes"),
                 **{k: row.get(k) for k in schema.REGIME_FIELDS},
+                "in_view_share": in_view_share((keyframes or {}).get(str(row["path"]))),
                 "gaussians_peak": row.get("gaussians_peak"),
                 "gaussians_added_total": row.get("gaussians_added_total"),
                 "peak_mem_mib": peak,
@@ -217,21 +238,26 @@ RUN_COLUMNS: tuple[tuple[str, str, int], ...] = (
     ("seed", "seed", 0), ("status", "status", 0), ("num_keyframes", "keyframes", 0),
     ("gaussians_added_per_kf_mpx", "added / kf / Mpx", 0), ("state_per_gaussian_bytes", "B / Gaussian", 0),
     ("store_per_keyframe_bytes", "B / keyframe", 0), ("gaussian_share_of_peak", "Gaussians' share of peak", 3),
+    ("in_view_share", "prunable share", 3),
     ("gaussians_peak", "Gaussians (peak)", 0), ("peak_mem_mib", "peak MiB", 1), ("peak_ratio", "x none", 3),
     ("ate_rmse_m", "ATE m", 3), ("psnr_db", "PSNR dB", 2), ("fps", "FPS", 3),
 )  # fmt: skip
 
 
-def regime_markdown(runs: pd.DataFrame, baseline: str = "none") -> str:
+def regime_markdown(
+    runs: pd.DataFrame, baseline: str = "none", keyframes: dict[str, pd.DataFrame] | None = None
+) -> str:
     """``regime.md``: every run, the per-row summary with Welch's p against the baseline, the paper's points."""
-    table = run_table(runs, baseline)
+    table = run_table(runs, baseline, keyframes)
     if table.empty:
         return "# Regime\n\nNo finished runs.\n"
     lines = ["# Regime: every run", ""]
     lines.append(
         "Each pruned run's peak against the baseline's (`" + baseline + "`) of the same cell (dataset, sequence, "
         "preset, resolution, frame spacing) at the same seed, else the cell's baseline mean. Descriptors from "
-        "metrics.json (docs/run-directory.md). A lost run keeps its figures up to where tracking was lost."
+        "metrics.json (docs/run-directory.md); prunable share: the mean over the run's prunes of its candidates "
+        "(in view, not new) over the Gaussians older than the keyframe, from keyframes.csv. A lost run keeps its "
+        "figures up to where tracking was lost."
     )
     for cell, group in table.groupby("cell", sort=False):
         lines += ["", f"## {cell}", "", "| run | " + " | ".join(t for _, t, _ in RUN_COLUMNS) + " |"]
@@ -265,36 +291,39 @@ def regime_markdown(runs: pd.DataFrame, baseline: str = "none") -> str:
     for point in paper.get("tables", []):
         ratio = point["peak_pruned_gb"] / point["peak_none_gb"]
         lines.append(f"{point['label']}: {point['peak_none_gb']} -> {point['peak_pruned_gb']} GB (x{ratio:.3f}).")
-    pred = prediction(table, run, baseline)
     lines += ["", "### The paper's run predicted from our bytes", ""]
-    if pred is None:
+    every = {cell: prediction(group, run, baseline) for cell, group in table.groupby("cell", sort=False)}
+    preds = {cell: pred for cell, pred in every.items() if pred is not None}
+    if not preds:
         lines.append("No baseline run records the bytes per Gaussian and per keyframe: no prediction.")
     else:
         lines += [
-            f"A held keyframe costs {pred['keyframe_bytes_per_px']:.1f} B per pixel here, so the paper's "
-            f"{run['keyframes']} keyframes at {run['width']}x{run['height']} hold {pred['keyframes_gib']:.2f} GiB in "
-            f"both runs. Its counts then give, with no fixed cost counted (paper: {run['peak_none_gb']} -> "
-            f"{run['peak_pruned_gb']} GB as printed, x{pred['reported_ratio']:.3f}; the prediction's GiB and its "
-            "GB are read as one unit, which moves each left-out figure by at most 7%):",
+            f"Each cell's baseline runs give the bytes a held keyframe costs per pixel and a Gaussian costs, so the "
+            f"paper's {run['keyframes']} keyframes at {run['width']}x{run['height']} and its counts give two peaks per "
+            f"cell, with no fixed cost counted (paper: {run['peak_none_gb']} -> {run['peak_pruned_gb']} GB as "
+            f"printed, x{run['peak_pruned_gb'] / run['peak_none_gb']:.3f}; the prediction's GiB and its GB are read "
+            "as one unit, which moves each left-out figure by at most 7%). A Gaussian's bytes are counted two ways: "
+            "its state alone (parameters, gradients, Adam moments) and the state with every work buffer at the peak "
+            "(the Gaussians' share of it, per Gaussian).",
             "",
-            "| bytes per Gaussian | B | without pruning GiB | with GiB | ratio | left out of the peaks GB |",
-            "|---|---|---|---|---|---|",
+            "| cell | keyframe B / px | keyframes GiB | bytes per Gaussian | B | without pruning GiB | with GiB "
+            "| ratio | left out of the peaks GB |",
+            "|---|---|---|---|---|---|---|---|---|",
         ]
-        words = {
-            "low": "its state (parameters, gradients, Adam moments)",
-            "high": "the state and every work buffer at the peak (the Gaussians' share of it)",
-        }
-        for name, what in words.items():
-            if f"ratio_{name}" not in pred:
-                continue
-            left = (
-                f"{run['peak_none_gb'] - pred[f'none_gib_{name}']:+.2f} / "
-                f"{run['peak_pruned_gb'] - pred[f'pruned_gib_{name}']:+.2f}"
-            )
-            lines.append(
-                f"| {what} | {pred[f'bytes_per_gaussian_{name}']:,.0f} | {pred[f'none_gib_{name}']:.2f} | "
-                f"{pred[f'pruned_gib_{name}']:.2f} | x{pred[f'ratio_{name}']:.3f} | {left} |"
-            )
+        words = {"low": "state", "high": "state + work buffers"}
+        for cell, pred in preds.items():
+            for name, what in words.items():
+                if f"ratio_{name}" not in pred:
+                    continue
+                left = (
+                    f"{run['peak_none_gb'] - pred[f'none_gib_{name}']:+.2f} / "
+                    f"{run['peak_pruned_gb'] - pred[f'pruned_gib_{name}']:+.2f}"
+                )
+                lines.append(
+                    f"| {cell} | {pred['keyframe_bytes_per_px']:.1f} | {pred['keyframes_gib']:.2f} | {what} | "
+                    f"{pred[f'bytes_per_gaussian_{name}']:,.0f} | {pred[f'none_gib_{name}']:.2f} | "
+                    f"{pred[f'pruned_gib_{name}']:.2f} | x{pred[f'ratio_{name}']:.3f} | {left} |"
+                )
         lines += [
             "",
             "What is left out is the part of each peak that follows neither the Gaussians as measured here nor the "

@@ -129,3 +129,25 @@ def test_the_pruning_label_names_what_differs_from_the_usual_schedule():
     released = {**usual, "target": "absolute", "n_target": 80000, "every": "frame"}
     assert pruning_label({"strategy": pocket, "prune": released}) == "N_tar 80000, every=frame"
     assert pruning_label({"strategy": {"name": "none"}, "prune": budget}) == ""  # none prunes nothing
+
+
+def test_the_prunable_share_reads_candidates_against_the_old_map(runs):
+    # keyframe 0 has no prune; keyframe 1: 100 old Gaussians (120 after it, 30 pruned, 50 added), 40 in view;
+    # keyframe 2: 200 old (230 + 0 - 30), 50 in view -> mean of 0.4 and 0.25
+    kf = pd.DataFrame(
+        {
+            "kf": [0, 1, 2],
+            "n_gaussians": [80, 120, 230],
+            "n_pruned": [0, 30, 0],
+            "n_added": [80, 50, 30],
+            "n_candidates": [0, 40, 50],
+        }
+    )
+    assert growth.in_view_share(kf) == pytest.approx((0.4 + 0.25) / 2)
+    assert growth.in_view_share(kf.drop(columns="n_candidates")) is None
+    assert growth.in_view_share(None) is None
+    path = str(runs["path"].iloc[2])
+    table = growth.run_table(runs, keyframes={path: kf}).set_index("path")
+    assert table.loc[path, "in_view_share"] == pytest.approx(0.325)
+    assert pd.isna(table.loc[str(runs["path"].iloc[0]), "in_view_share"])
+    assert "prunable share" in growth.regime_markdown(runs, keyframes={path: kf})
