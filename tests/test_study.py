@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+import yaml
 
 from bench.cli import entry as cli
 from bench.config.settings import plain
@@ -195,3 +196,29 @@ def test_a_user_study_in_conf_runs_resumes_and_reports(tmp_path, monkeypatch):
     assert report(["--study", "mini", "--allow-dirty", *TINY]) == 0
     written = pd.read_csv(tmp_path / "reports" / "mini" / "runs.csv")
     assert sorted(written["strategy"]) == ["none", "pocket"]
+
+
+def test_the_launchers_settings_stay_out_of_a_studys_jobs():
+    """``+study=NAME hydra.launcher.n_jobs=1``: a job is composed without the study file whose defaults chose the
+    launcher, so the launcher's settings there named no setting and every job failed; they configure the multirun."""
+    from omegaconf import OmegaConf
+
+    from bench.sweep.plan import multirun_only, planned
+
+    config = OmegaConf.create(
+        {
+            "sweep_name": "study_mini",
+            "hydra": {
+                "sweeper": {"study": yaml.safe_load(MINI)["hydra"]["sweeper"]["study"]},
+                "sweep": {"dir": "multirun/${sweep_name}", "subdir": "${hydra:job.override_dirname}"},
+                "job": {"config": {"override_dirname": {"exclude_keys": [], "item_sep": ",", "kv_sep": "="}}},
+            },
+        }
+    )
+    jobs = planned(config, ["+study=mini", "hydra.launcher.n_jobs=1", "seed=3", "hydra.sweeper.max_batch_size=2"])
+    assert len(jobs) == 2
+    for job in jobs:
+        assert "seed=3" in job
+        assert not [o for o in job if o.startswith(("hydra.launcher", "hydra.sweeper"))], job
+    assert multirun_only("hydra/launcher=slurm") and multirun_only("hydra.launcher.n_jobs=1")
+    assert not multirun_only("hydra.sweep.dir=x") and not multirun_only("hydra.launcher_x=1")

@@ -65,7 +65,13 @@ def expand(config: DictConfig, lines: Sequence[str]) -> list[list[str]]:
         from bench.sweep.studyfile import parse
 
         name = next((str(o.value()) for o in parsed if o.key_or_group == "study"), "?")
-        given = [o.input_line for o in parsed if o.key_or_group != "study" and o.input_line is not None]
+        # the launcher's and sweeper's settings (hydra.launcher.n_jobs=1) configure the multirun, not a job: a job
+        # is composed without the study file, whose defaults chose the launcher, so there they name no setting
+        given = [
+            o.input_line
+            for o in parsed
+            if o.key_or_group != "study" and o.input_line is not None and not multirun_only(o.input_line)
+        ]
         jobs = [job for _, job in expand_study(parse(name, study), given)]
     else:
         jobs = BasicSweeper.split_arguments(parsed, None)[0]  # Hydra's own expansion (hydra-core 1.3)
@@ -139,6 +145,16 @@ def sweep_dir(config: DictConfig, job: Sequence[str]) -> Path:
 def job_name(job: Sequence[str]) -> str:
     """A job in the sweep summary: all its settings (a left-out key too), sorted as Hydra names dirs."""
     return ",".join(sorted(o for o in job if not _is_hydra(o)))
+
+
+def multirun_only(override: str) -> bool:
+    """An override of the launcher or the sweeper (``hydra.launcher.n_jobs=1``, ``hydra/launcher=slurm``): it
+    configures how a study's jobs are launched, and is no job's setting."""
+    key = override.lstrip("+~").split("=", 1)[0]
+    return any(
+        key == k or key.startswith((f"{k}.", f"{k}/"))
+        for k in ("hydra.launcher", "hydra/launcher", "hydra.sweeper", "hydra/sweeper")
+    )
 
 
 def _is_hydra(override: str) -> bool:
