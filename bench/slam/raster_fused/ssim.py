@@ -194,8 +194,7 @@ class _SsimMap(torch.autograd.Function):
 
 
 def ssim_map_fused(x: torch.Tensor, y: torch.Tensor, g: torch.Tensor, c1: float, c2: float) -> torch.Tensor:
-    """[C, H, W] SSIM of x against y ([C, H, W] float32 CPU tensors, x differentiable) under the 1-D window g [11]."""
-    from bench.slam.raster_fused.kernel_cache import load_from_cache
-
-    load_from_cache()
+    """[C, H, W] SSIM of x against y ([C, H, W] float32 CPU tensors, x differentiable) under the 1-D window g [11].
+    Callers load the kernels first (``kernel_cache.load_from_cache``, as ``losses.dssim`` does; that module
+    imports this one)."""
     return _SsimMap.apply(x, y, g, c1, c2)
