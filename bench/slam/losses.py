@@ -45,8 +45,20 @@ def ssim_map(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return s.mean(0)
 
 
-def dssim(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """1 - mean SSIM of two [H, W, 3] images: the structural term of the 3DGS mapping loss."""
+def dssim(pred: torch.Tensor, target: torch.Tensor, fused: bool = False) -> torch.Tensor:
+    """1 - mean SSIM of two [H, W, 3] images: the structural term of the 3DGS mapping loss.
+
+    ``fused``: through the compiled CPU kernels of ``bench/slam/raster_fused/ssim.py`` (CPU tensors;
+    mapping uses them where the rasterizer is the ``fused`` backend), which give ``ssim_map``'s value
+    and gradient up to float32 rounding at a fraction of autograd's cost; otherwise ``ssim_map``."""
+    if fused:
+        # numba: only where the fused backend runs; the kernels loaded from numba's cache, as the rasterizer's
+        from bench.slam.raster_fused.kernel_cache import load_from_cache
+        from bench.slam.raster_fused.ssim import ssim_map_fused
+
+        load_from_cache()
+        s = ssim_map_fused(pred.permute(2, 0, 1), target.permute(2, 0, 1), _window(pred.device), C1, C2)  # [3, H, W]
+        return 1.0 - s.mean(0).mean()
     return 1.0 - ssim_map(pred, target).mean()
 
 

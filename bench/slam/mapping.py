@@ -50,6 +50,9 @@ class Mapping:
         self.cfg, self.map, self.keyframes, self.renderer = cfg, gaussians, keyframes, renderer
         self.strategy, self.diagnostics, self.residency = strategy, diagnostics, residency
         self.prune_context, self.map_grad2d, self.device = prune_context, map_grad2d, device
+        # the D-SSIM term through the compiled kernels where the rasterizer runs them (raster.resolve_backend), else
+        # torch's reference
+        self.fused_ssim = device.type == "cpu" and cfg.raster_backend in ("auto", "fused")
         # one generator per consumer, all from the run seed, so that a change in one (say, more
         # keyframes) does not shift the draws of another
         self.rng = random.Random(cfg.seed)  # keyframe sampling in mapping and refinement
@@ -246,7 +249,9 @@ class Mapping:
                 rgb, depth = kf.images()  # float32, read back from disk with residency=disk
                 color = (out.color - rgb).abs().mean()
                 if cfg.lambda_ssim_map > 0:
-                    color = (1 - cfg.lambda_ssim_map) * color + cfg.lambda_ssim_map * dssim(out.color, rgb)
+                    color = (1 - cfg.lambda_ssim_map) * color + cfg.lambda_ssim_map * dssim(
+                        out.color, rgb, self.fused_ssim
+                    )
                 loss = color + cfg.lambda_depth_map * depth_l1(out, depth, cfg.depth_loss_max_m, cfg.depth_normalized)
                 extra = self.strategy.mapping_loss(MappingContext(kf_idx, it, self.map, self.map.state, True))
                 if extra is not None:

@@ -239,7 +239,7 @@ def _front_fused(means, log_scales, quats, w2c, K, width, height, near_m) -> _Fu
     means2d, cov, z, rect, radius_px, tile_id = raster_fused.project(
         means, log_scales, quats, w2c, K, width, height, near_m, tiles_x, tiles_y
     )
-    cov2d = cov[:, _COV2D_ORDER].reshape(-1, 2, 2)  # [N, 2, 2]
+    cov2d = cov.index_select(1, _COV2D_ORDER).reshape(-1, 2, 2)  # [N, 2, 2]; a gather: advanced indexing costs more
     vis = raster_fused.in_view(rect)  # [V]
     return _FusedFront(means2d, cov2d, cov, z, rect, radius_px, tile_id, tiles_x, tiles_y, vis)
 

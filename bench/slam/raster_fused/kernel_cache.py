@@ -19,6 +19,7 @@ from bench.slam.raster_fused.compositing import (
 )
 from bench.slam.raster_fused.criteria_stats import criteria_extra
 from bench.slam.raster_fused.projection import project_bwd, project_fwd, sum_rows
+from bench.slam.raster_fused.ssim import ssim_bwd, ssim_fwd
 from bench.slam.raster_fused.threads import use_threading_layer
 
 _COMPILING_ENV = "POCKETBENCH_COMPILING_KERNELS"
@@ -54,6 +55,8 @@ def load_from_cache() -> None:
             reduce_sum,
             reduce_stats,
             criteria_extra,
+            ssim_fwd,
+            ssim_bwd,
         )
         if all(k._cache._cache_file._load_index() for k in kernels):
             return
