@@ -44,6 +44,11 @@ def paper_density(run: dict[str, Any]) -> float:
     return run["gaussians_none"] / run["keyframes"] / (run["width"] * run["height"] / 1e6)
 
 
+def paper_ratio(point: dict[str, Any]) -> float:
+    """A paper figure's pruned peak over its unpruned one (``paper_run.yaml``'s run or a table average)."""
+    return float(point["peak_pruned_gb"]) / float(point["peak_none_gb"])
+
+
 def _cell(row: pd.Series) -> tuple:
     return tuple(None if pd.isna(row.get(k)) else row.get(k) for k in CELL_KEYS)
 
@@ -209,7 +214,7 @@ def prediction(table: pd.DataFrame, run: dict[str, Any], baseline: str = "none")
     out = {
         "keyframe_bytes_per_px": b_kf_px,
         "keyframes_gib": kf_bytes / GIB,
-        "reported_ratio": run["peak_pruned_gb"] / run["peak_none_gb"],
+        "reported_ratio": paper_ratio(run),
     }
     for name, per_gaussian in (("low", low), ("high", high)):
         if not per_gaussian:
@@ -285,12 +290,13 @@ def regime_markdown(
         f"{run['label']}: {run['width']}x{run['height']}, {run['keyframes']} keyframes, "
         f"{run['gaussians_none']:,} Gaussians without pruning and {run['gaussians_pruned']:,} with, "
         f"{paper_density(run):,.0f} added per keyframe per Mpx; peak {run['peak_none_gb']} -> "
-        f"{run['peak_pruned_gb']} GB as printed (x{run['peak_pruned_gb'] / run['peak_none_gb']:.3f}, "
+        f"{run['peak_pruned_gb']} GB as printed (x{paper_ratio(run):.3f}, "
         f"{run['memory_measure']})."
     )
     for point in paper.get("tables", []):
-        ratio = point["peak_pruned_gb"] / point["peak_none_gb"]
-        lines.append(f"{point['label']}: {point['peak_none_gb']} -> {point['peak_pruned_gb']} GB (x{ratio:.3f}).")
+        lines.append(
+            f"{point['label']}: {point['peak_none_gb']} -> {point['peak_pruned_gb']} GB (x{paper_ratio(point):.3f})."
+        )
     lines += ["", "### The paper's run predicted from our bytes", ""]
     every = {cell: prediction(group, run, baseline) for cell, group in table.groupby("cell", sort=False)}
     preds = {cell: pred for cell, pred in every.items() if pred is not None}
@@ -301,7 +307,7 @@ def regime_markdown(
             f"Each cell's baseline runs give the bytes a held keyframe costs per pixel and a Gaussian costs, so the "
             f"paper's {run['keyframes']} keyframes at {run['width']}x{run['height']} and its counts give two peaks per "
             f"cell, with no fixed cost counted (paper: {run['peak_none_gb']} -> {run['peak_pruned_gb']} GB as "
-            f"printed, x{run['peak_pruned_gb'] / run['peak_none_gb']:.3f}; the prediction's GiB and its GB are read "
+            f"printed, x{paper_ratio(run):.3f}; the prediction's GiB and its GB are read "
             "as one unit, which moves each left-out figure by at most 7%). A Gaussian's bytes are counted two ways: "
             "its state alone (parameters, gradients, Adam moments) and the state with every work buffer at the peak "
             "(the Gaussians' share of it, per Gaussian).",

@@ -16,7 +16,7 @@ from bench.slam.gaussians import GaussianMap
 from bench.slam.keyframes import Keyframe, KeyframeStore
 from bench.slam.losses import depth_l1, dssim
 from bench.slam.prune_diagnostics import PruneDiagnostics, own_fit
-from bench.slam.raster import RasterOutput
+from bench.slam.raster import RasterOutput, resolve_backend
 from bench.slam.renderer import Renderer
 from bench.slam.residency import MapResidency
 from bench.slam.strategy import MappingContext, PruneContext, Strategy
@@ -50,9 +50,8 @@ class Mapping:
         self.cfg, self.map, self.keyframes, self.renderer = cfg, gaussians, keyframes, renderer
         self.strategy, self.diagnostics, self.residency = strategy, diagnostics, residency
         self.prune_context, self.map_grad2d, self.device = prune_context, map_grad2d, device
-        # the D-SSIM term through the compiled kernels where the rasterizer runs them (raster.resolve_backend), else
-        # torch's reference
-        self.fused_ssim = device.type == "cpu" and cfg.raster_backend in ("auto", "fused")
+        # the D-SSIM term through the compiled kernels where the rasterizer runs them, else torch's reference
+        self.fused_ssim = resolve_backend(cfg.raster_backend, device) == "fused"
         # one generator per consumer, all from the run seed, so that a change in one (say, more
         # keyframes) does not shift the draws of another
         self.rng = random.Random(cfg.seed)  # keyframe sampling in mapping and refinement

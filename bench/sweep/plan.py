@@ -150,7 +150,7 @@ def job_name(job: Sequence[str]) -> str:
 def multirun_only(override: str) -> bool:
     """An override of the launcher or the sweeper (``hydra.launcher.n_jobs=1``, ``hydra/launcher=slurm``): it
     configures how a study's jobs are launched, and is no job's setting."""
-    key = override.lstrip("+~").split("=", 1)[0]
+    key = _split(override)[0]
     return any(
         key == k or key.startswith((f"{k}.", f"{k}/"))
         for k in ("hydra.launcher", "hydra/launcher", "hydra.sweeper", "hydra/sweeper")

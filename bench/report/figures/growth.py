@@ -9,7 +9,7 @@ import pandas as pd
 from matplotlib.ticker import FuncFormatter
 
 from bench.report.figures.output import save_figure
-from bench.report.growth import keyframe_ratios, paper_density, paper_run, run_table
+from bench.report.growth import keyframe_ratios, paper_density, paper_ratio, paper_run, run_table
 from bench.report.style import apply_fonts, fig_title, key, legend_outside, new_figure, strategy_colour
 
 PAPER_COLOUR = "#7F7F7F"
@@ -47,7 +47,7 @@ def plot_ratio_vs_keyframes(
         for (label, seed), c in curves[curves["cell"] == cell].groupby(["label", "seed"], sort=False):
             colour, ls = styles[label]
             ax.plot(c["n_kf_held"], c["ratio"], color=colour, ls=ls, lw=1.2, alpha=0.9 if seed == 0 else 0.55)
-        ax.plot([run["keyframes"]], [run["peak_pruned_gb"] / run["peak_none_gb"]], "*", ms=11, color=PAPER_COLOUR)
+        ax.plot([run["keyframes"]], [paper_ratio(run)], "*", ms=11, color=PAPER_COLOUR)
         ax.axhline(1.0, color="black", lw=0.6)
         ax.set_ylim(0, 1.1)
         ax.set_xlabel("keyframes held")
@@ -88,7 +88,7 @@ def plot_ratio_vs_density(runs: pd.DataFrame, out: Path, baseline: str = "none")
             ms=5 + 6 * min(1.0, float(p["num_keyframes"] or 0) / 400),
         )
     run = paper_run()["run"]
-    ax.plot([paper_density(run)], [run["peak_pruned_gb"] / run["peak_none_gb"]], "*", ms=13, color=PAPER_COLOUR)
+    ax.plot([paper_density(run)], [paper_ratio(run)], "*", ms=13, color=PAPER_COLOUR)
     ax.axhline(1.0, color="black", lw=0.6)
     ax.set_ylim(0, 1.1)
     ax.set_xlim(0, 1.15 * max([paper_density(run), *density[cells]]))

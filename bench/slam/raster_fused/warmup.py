@@ -8,7 +8,7 @@ from bench.slam.conic import conic
 from bench.slam.raster_fused.autograd import composite, project
 from bench.slam.raster_fused.binning import bin_pairs, in_view
 from bench.slam.raster_fused.criteria_stats import extra_stats
-from bench.slam.raster_fused.ssim import ssim_map_fused
+from bench.slam.raster_fused.ssim import SSIM_WINDOW_PX, ssim_map_fused
 
 
 def compile_kernels() -> None:
@@ -56,5 +56,5 @@ def compile_kernels() -> None:
     # mapping's D-SSIM term (bench.slam.losses.dssim with fused=True)
     img = torch.rand(3, size, size, generator=g, requires_grad=True)
     ssim_map_fused(
-        img, torch.rand(3, size, size, generator=g), torch.full((11,), 1.0 / 11), 1e-4, 9e-4
+        img, torch.rand(3, size, size, generator=g), torch.full((SSIM_WINDOW_PX,), 1.0 / SSIM_WINDOW_PX), 1e-4, 9e-4
     ).sum().backward()
