@@ -21,9 +21,17 @@ class Baseline:
     default: Variant
     by_keep: dict[float | None, Variant]
     by_preset: dict[tuple[str, float | None], Variant] = field(default_factory=dict)
+    candidates: tuple[Variant, ...] = ()  # every baseline row, of every preset and input
 
-    def for_variant(self, variant: Variant) -> Variant:
-        """The baseline of the same preset (and keep ratio where it ran several); presets never mix."""
+    def for_variant(self, variant: Variant) -> Variant | None:
+        """The baseline of the same preset (and keep ratio where it ran several); presets never mix. Where the
+        baseline ran several inputs (image sizes, frame windows), the one of the variant's input, and None where
+        the baseline never read that input: a row is never compared with a run of another input."""
+        if len({v.input for v in self.candidates}) > 1:
+            same_input = [v for v in self.candidates if v.input == variant.input]
+            if not same_input:
+                return None
+            return _pick(same_input, variant)
         same = self.by_preset.get((variant.slam_preset, variant.keep_ratio))
         if same is not None:
             return same
@@ -31,6 +39,14 @@ class Baseline:
         if in_preset:
             return ([v for v in in_preset if v.keep_ratio in (None, 1.0)] or in_preset)[0]
         return self.by_keep.get(variant.keep_ratio, self.default)
+
+
+def _pick(candidates: list[Variant], variant: Variant) -> Variant:
+    """Among baseline rows of one input: the same preset and keep ratio, else the same preset's unpruned row,
+    else the first."""
+    in_preset = [v for v in candidates if v.slam_preset == variant.slam_preset] or candidates
+    same_keep = [v for v in in_preset if v.keep_ratio == variant.keep_ratio]
+    return (same_keep or [v for v in in_preset if v.keep_ratio in (None, 1.0)] or in_preset)[0]
 
 
 def pick_baseline(found: list[Variant], baseline: str) -> tuple[Baseline | None, str | None]:
@@ -43,6 +59,7 @@ def pick_baseline(found: list[Variant], baseline: str) -> tuple[Baseline | None,
         chosen,
         {v.keep_ratio: v for v in candidates if v.slam_preset == chosen.slam_preset},
         {(v.slam_preset, v.keep_ratio): v for v in candidates},
+        tuple(candidates),
     )
     if len({v.keep_ratio for v in candidates}) == 1:
         return result, None
@@ -61,7 +78,8 @@ def mark_noise(block: Block, measured: dict[Variant, list[Cell]], baseline: Base
         variant = row.variant
         if variant is None or variant.strategy == baseline.default.strategy:
             continue
-        base = measured.get(baseline.for_variant(variant))
+        ref_variant = baseline.for_variant(variant)
+        base = None if ref_variant is None else measured.get(ref_variant)
         if base is None:
             continue
         for i, (cell, ref) in enumerate(zip(row.cells, base, strict=True)):
@@ -149,10 +167,13 @@ def relative_block(
             rel = [Cell("ref")] * len(cells) if is_base else relative_cells(cells, paper_base, style)
         else:
             variant, cells = by_label[row.label]
+            ref_variant = baseline.for_variant(variant)
             if variant.strategy == baseline.default.strategy:
                 rel = [Cell("ref")] * len(cells)
+            elif ref_variant is None:  # the baseline never read this input
+                rel = [Cell("na")] * len(cells)
             else:
-                rel = relative_cells(cells, measured[baseline.for_variant(variant)], style)
+                rel = relative_cells(cells, measured[ref_variant], style)
         rows.append(Row(row.label, rel, paper=row.paper, variant=row.variant))
     decimals = 1 if style == "percent" else 2
     return Block(title, None, style, decimals, rows, key=source.key)

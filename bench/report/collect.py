@@ -217,6 +217,7 @@ def collect(roots: Iterable[Path]) -> Collection:
         "slam_preset",
         "memory_policy",
         "pruning",
+        "input",
         "eval_protocol",
     ]
     dupes = runs[runs.duplicated(subset=keys, keep=False)]

@@ -29,6 +29,7 @@ FINISHED = ("ok", "lost")
 # what makes two runs comparable: a pruned run is read against the baseline of its cell
 CELL_KEYS: tuple[str, ...] = (
     "dataset", "seq", "slam_preset", "dataset.downscale", "dataset.width", "dataset.height", "dataset.stride",
+    "max_frames",
 )  # fmt: skip
 GIB = 1024**3
 
@@ -62,15 +63,18 @@ def cell_label(row: pd.Series) -> str:
         parts.append(f"1/{int(row['dataset.downscale'])}")
     if not pd.isna(row.get("dataset.stride")) and int(row["dataset.stride"]) != 1:
         parts.append(f"stride {int(row['dataset.stride'])}")
+    if not pd.isna(row.get("max_frames")):
+        parts.append(f"{int(row['max_frames'])} frames")
     return ", ".join(parts)
 
 
 def labelled(runs: pd.DataFrame) -> pd.DataFrame:
-    """The finished runs (ok or lost), each with its table row's label (``bench.report.tables.variants``)."""
+    """The finished runs (ok or lost), each with its table row's label (``bench.report.variants``, per dataset)."""
     done = runs[runs["status"].isin(FINISHED)].copy()
     done["label"] = ""
-    for variant in variants(done):
-        done.loc[variant_runs(done, variant).index, "label"] = variant.label
+    for _, one in done.groupby(done["dataset"].astype(str), sort=False):  # per dataset, as the tables label rows
+        for variant in variants(one):
+            done.loc[variant_runs(one, variant).index, "label"] = variant.label
     return done
 
 

@@ -26,7 +26,7 @@ SETTING_KEYS: tuple[str, ...] = (
     "prune.target", "prune.n_target", "prune.n_target_per_mpx", "prune.n_target_floor_per_px", "prune.every",
     "prune.grad_source",
     "dataset.downscale", "dataset.width", "dataset.height", "dataset.n_frames", "dataset.first", "dataset.last",
-    "dataset.stride", "dataset.route", "dataset.route_file",
+    "dataset.stride", "dataset.route", "dataset.route_file", "max_frames",
     "threads", "determinism", "eval.protocol",
 )  # fmt: skip
 
@@ -38,6 +38,26 @@ def _lookup(cfg: dict[str, Any], dotted: str) -> Any:
             return None
         node = node[part]
     return node
+
+
+# What a run read: the image size and the frame window. Runs that differ here measured another input, so they
+# are other table rows (``input_label``), never seeds of one.
+INPUT_KEYS: tuple[str, ...] = (
+    "dataset.downscale", "dataset.width", "dataset.height", "dataset.first", "dataset.last", "dataset.n_frames",
+    "dataset.stride", "max_frames",
+)  # fmt: skip
+
+
+def input_label(cfg: dict[str, Any]) -> str:
+    """The ``INPUT_KEYS`` a run's config sets, as ``key=value`` joined by ", " (``dataset.downscale=2,
+    dataset.stride=3, max_frames=100``); "" where it sets none. A label of the run alone, so that any subset of a
+    table's runs selects by it alike; ``bench.report.variants`` names in a row's label only the parts that differ."""
+    parts = []
+    for key in INPUT_KEYS:
+        value = _lookup(cfg, key)
+        if value is not None:
+            parts.append(f"{key}={_short(value)}")
+    return ", ".join(parts)
 
 
 # Config groups of the memory policies (issue 44): a run whose values there differ from SlamConfig's
@@ -125,7 +145,7 @@ def pruning_label(cfg: dict[str, Any]) -> str:
 
 def read_settings(run_dir: Path, device: str | None) -> dict[str, Any]:
     """The ``SETTING_KEYS`` of one run (None where its config lacks a key or has no config), and its
-    ``memory_policy`` (``policy_label``) and ``pruning`` (``pruning_label``).
+    ``memory_policy`` (``policy_label``), ``pruning`` (``pruning_label``) and ``input`` (``input_label``).
 
     ``slam.raster_backend=auto`` is written as the backend it chose on the run's device, because
     ``auto`` means different kernels on CPU and CUDA.
@@ -135,10 +155,11 @@ def read_settings(run_dir: Path, device: str | None) -> dict[str, Any]:
     except (OSError, yaml.YAMLError):
         cfg = None
     if not isinstance(cfg, dict):
-        return {**dict.fromkeys(SETTING_KEYS), "memory_policy": None, "pruning": None}
+        return {**dict.fromkeys(SETTING_KEYS), "memory_policy": None, "pruning": None, "input": None}
     row = {key: _lookup(cfg, key) for key in SETTING_KEYS}
     row["memory_policy"] = policy_label(cfg.get("slam"))
     row["pruning"] = pruning_label(cfg)
+    row["input"] = input_label(cfg)
     if row["slam.raster_backend"] == "auto" and device:
         chosen = "fused" if str(device).startswith("cpu") else "torch"
         row["slam.raster_backend"] = f"auto ({chosen})"
@@ -173,7 +194,7 @@ def settings_markdown(runs: pd.DataFrame) -> str:
 
 # what one table cell pools (a table holds one eval.protocol: bench.report.tables.build_tables)
 POOL_KEYS: tuple[str, ...] = (
-    "dataset", "seq", "strategy", "keep_ratio", "slam_preset", "memory_policy", "pruning", "eval_protocol",
+    "dataset", "seq", "strategy", "keep_ratio", "slam_preset", "memory_policy", "pruning", "input", "eval_protocol",
 )  # fmt: skip
 
 

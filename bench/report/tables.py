@@ -192,9 +192,15 @@ def performance_table(
     if base is not None:
         blocks.append(relative_block("FPS vs baseline", "times", fps, fps_cells, base, fps_paper))
         several = len(base.by_keep) > 1
-        notes.append(
-            f"Baseline: {base.default.label}" + (" (or the baseline at the same keep ratio)." if several else ".")
-        )
+        if len({v.input for v in base.candidates}) > 1:
+            notes.append(
+                "Baseline: the baseline row of the same input ({...}: image size, frame window); a row whose input "
+                "the baseline never read has no relative cells."
+            )
+        else:
+            notes.append(
+                f"Baseline: {base.default.label}" + (" (or the baseline at the same keep ratio)." if several else ".")
+            )
     else:
         warnings.append(f"{dataset}: no runs of baseline strategy '{baseline}', relative rows left out")
         notes.append(f"No runs of baseline strategy '{baseline}': relative rows left out.")
