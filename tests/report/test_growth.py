@@ -151,3 +151,19 @@ def test_the_prunable_share_reads_candidates_against_the_old_map(runs):
     assert table.loc[path, "in_view_share"] == pytest.approx(0.325)
     assert pd.isna(table.loc[str(runs["path"].iloc[0]), "in_view_share"])
     assert "prunable share" in growth.regime_markdown(runs, keyframes={path: kf})
+
+
+def test_a_shorter_window_is_another_cell(runs):
+    """The same sequence cut to its first 100 frames (``max_frames``) is its own cell, read against its own
+    baseline, never against the whole sequence's."""
+    short = pd.DataFrame(
+        [
+            _run("none", 0, 80.0, max_frames=100, path="runs/short/none"),
+            _run("pocket", 0, 60.0, "N_tar 166223/Mpx, floor 1/px", max_frames=100, path="runs/short/pocket"),
+        ]
+    )
+    table = growth.run_table(pd.concat([runs, short], ignore_index=True)).set_index("path")
+    assert table.loc["runs/short/pocket", "peak_ratio"] == pytest.approx(0.75)  # 60 / 80, not 60 / 200
+    assert table.loc["runs/short/pocket", "baseline_path"] == "runs/short/none"
+    assert table.loc["runs/short/pocket", "cell"] == "7-Scenes seq, 1/4, stride 3, 100 frames"
+    assert table.loc["runs/pocketN_tar 166223/Mpx, floor 1/px/4/0", "peak_ratio"] == pytest.approx(0.5)
