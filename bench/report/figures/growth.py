@@ -14,6 +14,13 @@ from bench.report.style import apply_fonts, fig_title, key, legend_outside, new_
 
 PAPER_COLOUR = "#7F7F7F"
 MARKERS = ("o", "s", "^", "D", "v", "P", "X")
+LEGEND_IN_PER_CHAR = 0.065  # the legend's width per character of its longest label, at its font size
+
+
+def _legend_in(labels: list[str]) -> float:
+    """The width the legend beside the panels takes, in inches, so that long row labels (a budget, a memory
+    policy, an input in braces) leave the panels their width."""
+    return 0.8 + LEGEND_IN_PER_CHAR * max((len(label) for label in labels), default=0)
 
 
 def _styles(labels: list[str], strategies: dict[str, str]) -> dict[str, tuple[str, str | tuple]]:
@@ -39,10 +46,10 @@ def plot_ratio_vs_keyframes(
         return None
     strategies = dict(zip(curves["label"], curves["strategy"], strict=False))
     cells = list(dict.fromkeys(curves["cell"]))
-    fig = new_figure(4.2 * len(cells) + 4.8, 3.6)  # the legend's long labels beside the panels
-    axes = fig.subplots(1, len(cells), squeeze=False)[0]
     styles = _styles(list(dict.fromkeys(curves["label"])), strategies)
     run = paper_run()["run"]
+    fig = new_figure(4.2 * len(cells) + _legend_in([*styles, run["label"]]), 3.6)
+    axes = fig.subplots(1, len(cells), squeeze=False)[0]
     for ax, cell in zip(axes, cells, strict=True):
         for (label, seed), c in curves[curves["cell"] == cell].groupby(["label", "seed"], sort=False):
             colour, ls = styles[label]
@@ -73,7 +80,8 @@ def plot_ratio_vs_density(runs: pd.DataFrame, out: Path, baseline: str = "none")
     strategies = dict(zip(table["label"], table["strategy"], strict=False))
     styles = _styles(list(dict.fromkeys(points["label"])), strategies)
     cells = list(dict.fromkeys(points["cell"]))
-    fig = new_figure(9.0, 4.2)
+    run = paper_run()["run"]
+    fig = new_figure(5.0 + _legend_in([*styles, *cells, run["label"]]), 4.2)
     ax = fig.subplots()
     for _, p in points.iterrows():
         colour, _ = styles[p["label"]]
@@ -87,7 +95,6 @@ def plot_ratio_vs_density(runs: pd.DataFrame, out: Path, baseline: str = "none")
             mfc=colour if filled else "none",
             ms=5 + 6 * min(1.0, float(p["num_keyframes"] or 0) / 400),
         )
-    run = paper_run()["run"]
     ax.plot([paper_density(run)], [paper_ratio(run)], "*", ms=13, color=PAPER_COLOUR)
     ax.axhline(1.0, color="black", lw=0.6)
     ax.set_ylim(0, 1.1)
