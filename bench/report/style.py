@@ -23,7 +23,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from bench.names import LITERATURE, STRATEGY_ORDER, method_name
-from bench.report.variants import Variant
+from bench.report.variants import Variant, input_differences
 
 MAX_SERIES = 7
 BASELINE = "none"
@@ -79,21 +79,27 @@ def _preset_title(preset: str, several: bool) -> str:
 
 
 def panel_groups(found: Sequence[Variant]) -> list[Panel]:
-    """Variants split into panels: per preset, the strategies at the preset's usual keep ratio; a
+    """Variants split into panels: per preset (and per input, image size and frame window, where the runs read
+    several: titled by the input keys that differ), the strategies at the preset's usual keep ratio; a
     strategy run at several ratios also gets a panel of its ratios (with the baseline); a panel
     with more than ``MAX_SERIES`` variants is cut into several."""
     count = Counter(v.slam_preset for v in found)
     presets = sorted(count, key=lambda p: (p != "default", -count[p], p))  # the harness's own first
     several = len(presets) > 1
+    inputs = sorted({v.input for v in found})
+    shown = input_differences(set(inputs))
     panels: list[Panel] = []
-    for preset in presets:
-        everything = [v for v in found if v.slam_preset == preset]
+    for preset, inp in [(p, i) for p in presets for i in inputs]:
+        everything = [v for v in found if v.slam_preset == preset and v.input == inp]
+        if not everything:
+            continue
         mine = [v for v in everything if not v.memory_policy]  # today's system; memory policies get their panel
         per_strategy = Counter(v.strategy for v in mine)
         ratios = Counter(v.keep_ratio for v in mine if v.keep_ratio is not None)
         usual = ratios.most_common(1)[0][0] if ratios else None
         main = [v for v in mine if per_strategy[v.strategy] == 1 or v.keep_ratio in (usual, None)]
-        title = _preset_title(preset, several)
+        read = f"{{{shown[inp]}}}" if len(inputs) > 1 else ""
+        title = " ".join(t for t in (_preset_title(preset, several), read) if t)
         panels += _families(title, main, preset, usual)
         for strategy in [s for s, n in per_strategy.items() if n > 1]:
             swept = [v for v in mine if v.strategy == strategy]
