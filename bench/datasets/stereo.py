@@ -4,8 +4,9 @@ Disparity is computed at full resolution, where one pixel of disparity is worth 
 precision, then converted (depth = fx * baseline / disparity, fx at full resolution) and
 downscaled with a valid-aware block median (``downscale_depth``). SGBM costs ~0.2 s per KITTI
 frame (1226x370, 128 disparities) on 2 CPU cores, so each frame's delivered depth map is cached under
-``cache_dir`` keyed by a hash of every input that changes it: image paths (and their size and
-mtime), matcher parameters, fx, baseline, depth cap, downscale and rectification.
+``cache_dir`` keyed by a hash of every input that changes it: the two images' contents (BLAKE2b of their
+bytes, not their paths or mtimes, so a dataset copied, restored or remounted keeps its entries, and an image
+rewritten in place gets a new one), matcher parameters, fx, baseline, depth cap, downscale and rectification.
 """
 
 from __future__ import annotations
@@ -178,8 +179,12 @@ class DepthCache:
 
 
 def _file_id(path: Path) -> list[Any]:
-    st = path.stat() if path.exists() else None
-    return [str(path.resolve()), st.st_size if st else None, st.st_mtime_ns if st else None]
+    """An image by its bytes: [size, BLAKE2b digest]; [None, None] for a missing file (its read then fails)."""
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return [None, None]
+    return [len(data), hashlib.blake2b(data, digest_size=16).hexdigest()]
 
 
 class StereoSequence(TimedSequence):

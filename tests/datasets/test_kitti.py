@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import os
 import shutil
 from pathlib import Path
 
@@ -111,6 +112,26 @@ def test_cache_hit_returns_identical_depth(kitti_cfg, tmp_path, monkeypatch):
     assert other.depth_key(0) != seq.depth_key(0)
     with pytest.raises(AssertionError, match="cache hit"):
         other[0]
+
+
+def test_cache_keys_images_by_content_not_path_or_mtime(kitti_cfg, tmp_path):
+    """A copy of the frames elsewhere, with new mtimes, is the same depth; an image rewritten in place is not."""
+    root = Path(kitti_cfg["root"])
+    copy = tmp_path / "copy"
+    shutil.copytree(root, copy, copy_function=shutil.copy)  # new mtimes
+    cfg = {**kitti_cfg, "cache_dir": str(tmp_path / "cache"), "last": 0}
+    seq = kitti.open_sequence(cfg)
+    moved = kitti.open_sequence({**cfg, "root": str(copy)})
+    assert moved.left_paths[0] != seq.left_paths[0]
+    assert moved.depth_key(0) == seq.depth_key(0)
+    left = moved.left_paths[0]
+    st = left.stat()
+    os.utime(left, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # touched: the same bytes
+    assert moved.depth_key(0) == seq.depth_key(0)
+    data = bytearray(left.read_bytes())
+    data[-1] ^= 0xFF  # the same size, other bytes
+    left.write_bytes(bytes(data))
+    assert moved.depth_key(0) != seq.depth_key(0)
 
 
 def test_cache_disabled_writes_nothing(kitti_cfg, tmp_path, monkeypatch):
