@@ -340,6 +340,23 @@ def test_pixel_loops_compile_to_vector_code():
         packed = re.findall(r"\bv\w+ps\s[^\n]*%[yz]mm", asm)
         assert len(packed) > 60, f"{span.__name__}: {len(packed)} packed AVX2/AVX-512 instructions"
 
+    # the backward's span as composite_bwd calls it, whole rows: no scalar remainder loop (a scalar
+    # copy of the loop body has dozens of scalar float ops; what is left is the sums' reductions and
+    # the gradients computed from them)
+    span = rf._backward_span
+
+    @njit(**flags)
+    def whole_rows(st, rows, g, out):
+        g0, g1, g2, g3, g4, g5, g6, g7, g8, g9, g10, g11, g12, g13 = g
+        gr = span(st, u64(0), u64(rows) << rf._UROW_SHIFT, g0, g1, g2, g3, g4, g5, g6, g7, g8, g9, g10, g11, g12, g13)
+        for m in range(10):
+            out[m] = gr[m]
+
+    whole_rows(np.zeros(rf.B_SIZE, f32), 2, tuple(gaussian), np.zeros(10, f32))
+    asm = whole_rows.inspect_asm(whole_rows.signatures[0])
+    scalar = re.findall(r"\bv(?:fn?m(?:add|sub)\d+|add|sub|mul|div|min|max)ss\b", asm)
+    assert len(scalar) < 40, f"composite_bwd's span: {len(scalar)} scalar float32 instructions (a remainder loop?)"
+
 
 _RENDER_TO = """
 import sys, torch
