@@ -49,6 +49,8 @@ B_SIZE = 9 * NPIX
 # the forward counts a tile's saturated pixels (to stop early) once per this many list entries; an
 # entry after saturation changes nothing, so the period changes no result
 SATURATION_CHECK = 8
+# the backward walks a tile's list back to front and prefetches the Gaussian this many entries ahead
+PREFETCH_AHEAD = 8
 # one row per Gaussian, one 64-byte cache line: what the compositing reads of a Gaussian
 G_MX, G_MY, G_A, G_B, G_C, G_O, G_F0, G_EX, G_EY, G_PMIN = 0, 1, 2, 3, 4, 5, 6, 10, 11, 12
 G_SIZE = 16
@@ -65,6 +67,25 @@ def _bits_to_f32(typingctx, bits):  # pragma: no cover - compiled
 
     def codegen(context, builder, signature, args):
         return builder.bitcast(args[0], llvm_ir.FloatType())
+
+    return sig, codegen
+
+
+@intrinsic
+def _prefetch(typingctx, address):  # pragma: no cover - compiled
+    """A hint that the cache line at the integer ``address`` is read soon (``llvm.prefetch``); no value,
+    and no effect on any result."""
+    sig = types.void(types.uintp)
+
+    def codegen(context, builder, signature, args):
+        i8p = llvm_ir.IntType(8).as_pointer()
+        i32 = llvm_ir.IntType(32)
+        fnty = llvm_ir.FunctionType(llvm_ir.VoidType(), [i8p, i32, i32, i32])
+        fn = builder.module.globals.get("llvm.prefetch.p0") or llvm_ir.Function(
+            builder.module, fnty, "llvm.prefetch.p0"
+        )
+        builder.call(fn, [builder.inttoptr(args[0], i8p), i32(0), i32(3), i32(1)])  # read, keep, data
+        return context.get_dummy_value()
 
     return sig, codegen
 
@@ -422,6 +443,7 @@ def composite_bwd(
     pair_grad [P, 10]: d/d(mean2d x, y), d/d(conic a, b, c), d/d opacity, d/d features (4) of the
     pair's Gaussian, summed over the tile's pixels in a fixed order.
     """
+    gp_addr, gp_row = _U(gp.ctypes.data), _U(gp.strides[0])
     for th in prange(bounds.shape[0] - 1):
         st = _aligned_state(B_SIZE)
         for j in range(bounds[th], bounds[th + 1]):
@@ -454,6 +476,9 @@ def composite_bwd(
                 st[B_R + i] = g_t[p] * t_final[p] if inside else F32(0.0)
             for k in range(k_last, s - 1, -1):
                 g = gid[k]
+                if k - PREFETCH_AHEAD >= s:
+                    # a Gaussian's row of gp is a cache line read at random: fetched a few entries early
+                    _prefetch(gp_addr + _U(gid[k - PREFETCH_AHEAD]) * gp_row)  # type: ignore[call-arg]
                 mx, my = gp[g, G_MX], gp[g, G_MY]
                 bx0, bx1, by0, by1 = pixel_box(mx, my, gp[g, G_EX], gp[g, G_EY], x0, x1, y0, y1)
                 if by1 <= by0:
