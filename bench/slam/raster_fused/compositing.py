@@ -24,25 +24,25 @@ LN255 = F32(math.log(255.0))
 # - indices are unsigned: numba wraps negative signed indices, which makes every load a select;
 # - error_model="numpy": with Python's model a float division carries a zero-division branch;
 # - no branch in the loop body: a lane that takes no part adds zero and keeps its state (selects);
-# - a span is whole rows of pixels. The forward stores a tile's pixels as two 8-px column halves,
-#   each row-major, so the rows of a Gaussian's box inside one half are one contiguous span whose
-#   length is a multiple of 8. The backward stores whole 16-px rows, so a Gaussian's rows are one
-#   span, and writes its length as rows << 4: LLVM then sees a multiple of 16 lanes and emits no
-#   remainder loop (the halves' spans ran their last 8 lanes through a 4-lane epilogue), and the
-#   Gaussian's ten sums are reduced across lanes once, not once per half.
+# - a span is whole rows of pixels. A tile's pixels are stored as two 8-px column halves, each
+#   row-major, so the rows of a Gaussian's box inside one half are one contiguous span whose length
+#   is a multiple of 8. The backward widens its spans to whole pairs of rows from an even row (16
+#   lanes, 64 bytes) and writes the length as pairs << 4: LLVM then sees a multiple of 16 lanes and
+#   emits no remainder loop (a span of an odd number of rows ran its last 8 lanes through a 4-lane
+#   epilogue, then a scalar loop), and every vector load and store is aligned.
 _U = np.uint64
 HALF = TILE // 2
 NPIX = TILE * TILE
 _UH = _U(HALF)
 _UHALF_PIX = _U(NPIX // 2)
-_UTILE = _U(TILE)
-_UROW_SHIFT = _U(4)  # log2(TILE): n << _UROW_SHIFT is n whole rows of the backward state
+_UPAIR = _U(2 * HALF)  # two 8-px rows of a half: 16 lanes
+_UPAIR_SHIFT = _U(4)  # log2(16): n << _UPAIR_SHIFT is n pairs of rows
 # forward state: pixel coordinates, transmittance, accumulated features, last contributor (an index
 # into the tile's list, -1 none), saturated flag, and the visiting Gaussian's blending weight
 S_X, S_Y, S_T, S_A0, S_A1, S_A2, S_A3, S_LAST, S_DONE, S_W = (_U(j * NPIX) for j in range(10))
 S_SIZE = 10 * NPIX
-# backward state (whole 16-px rows, row-major): pixel coordinates, transmittance in front of the
-# visited Gaussian, last contributor, q = dL/d acc (4), and r = q . (the features accumulated behind
+# backward state (the forward's layout): pixel coordinates, transmittance in front of the visited
+# Gaussian, last contributor, q = dL/d acc (4), and r = q . (the features accumulated behind
 # the visited Gaussian) + dL/dT_final * T_final, the one number of what lies behind that dL/dalpha needs
 B_X, B_Y, B_TC, B_LK, B_Q0, B_Q1, B_Q2, B_Q3, B_R = (_U(j * NPIX) for j in range(9))
 B_SIZE = 9 * NPIX
@@ -371,8 +371,9 @@ def composite_fwd(
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
-def _backward_span(st, lo, n, fx0, fx1, mx, my, a, b, c, o, p_min, f0, f1, f2, f3, kl):  # pragma: no cover
-    """One Gaussian over backward state pixels [lo, lo + n), back to front: its 10 gradient sums there.
+def _backward_span(st, lo, n, fx0, fx1, fy0, fy1, mx, my, a, b, c, o, p_min, f0, f1, f2, f3, kl):  # pragma: no cover
+    """One Gaussian over backward state pixels [lo, lo + n), masked to its box [fx0, fx1) x [fy0, fy1),
+    back to front: its 10 gradient sums there.
 
     One loop updates each pixel's state and adds its terms to the sums (the Gaussian's constants
     that find no register are read from the stack as operands). Per pixel,
@@ -387,12 +388,14 @@ def _backward_span(st, lo, n, fx0, fx1, mx, my, a, b, c, o, p_min, f0, f1, f2, f
         i = lo + j
         xv = st[B_X + i]
         dx = xv - mx
-        dy = st[B_Y + i] - my
+        yv = st[B_Y + i]
+        dy = yv - my
         power = F32(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
         gauss = exp_f32(power)
         raw = o * gauss
         alpha = min(raw, ALPHA_MAX)
-        ok = (xv >= fx0) & (xv < fx1) & (st[B_LK + i] >= kl) & (power >= p_min) & (raw >= ALPHA_MIN)
+        box = (xv >= fx0) & (xv < fx1) & (yv >= fy0) & (yv < fy1)
+        ok = box & (st[B_LK + i] >= kl) & (power >= p_min) & (raw >= ALPHA_MIN)
         inv_one_m = F32(1.0) / (F32(1.0) - alpha)
         tcur = st[B_TC + i]
         t_before = tcur * inv_one_m
@@ -436,10 +439,9 @@ def composite_bwd(
     gid, tile_start, gp, width, height, tiles_x, order, bounds, t_final, last, g_acc, g_t, pair_grad
 ):  # pragma: no cover - compiled
     """Per tile, its list back to front from the last contributor (3DGS's backward pass), each
-    Gaussian over the rows of its box that its ellipse meets.
+    Gaussian over the rows of its box that its ellipse meets, in each column half, widened to whole
+    pairs of rows (the rows added are outside the box or fail the exact test: they add exact zeros).
 
-    The backward state holds a tile's pixels in whole 16-px rows (not the forward's two column
-    halves): a Gaussian's rows are one span of whole vectors, its sums reduced once.
     pair_grad [P, 10]: d/d(mean2d x, y), d/d(conic a, b, c), d/d opacity, d/d features (4) of the
     pair's Gaussian, summed over the tile's pixels in a fixed order.
     """
@@ -455,8 +457,8 @@ def composite_bwd(
                     pair_grad[k, m] = F32(0.0)
             k_last = -1
             for i in range(NPIX):
-                x = x0 + i % TILE
-                y = y0 + i // TILE
+                x = x0 + (i // (NPIX // 2)) * HALF + i % HALF
+                y = y0 + (i // HALF) % TILE
                 st[B_X + i] = F32(x)
                 st[B_Y + i] = F32(y)
                 inside = y < y1 and x < x1
@@ -485,15 +487,21 @@ def composite_bwd(
                     continue
                 a, b, c, o = gp[g, G_A], gp[g, G_B], gp[g, G_C], gp[g, G_O]
                 p_min = gp[g, G_PMIN]
-                ry0, ry1 = _rows(mx, my, a, b, c, p_min, bx0, bx1, by0, by1, y0)
-                if ry1 <= ry0:
-                    continue
-                lo, n = _U(ry0 - y0) * _UTILE, _U(ry1 - ry0) << _UROW_SHIFT
-                f0, f1, f2, f3 = gp[g, G_F0], gp[g, G_F0 + 1], gp[g, G_F0 + 2], gp[g, G_F0 + 3]
-                kl = F32(k - s)
-                gr = _backward_span(st, lo, n, F32(bx0), F32(bx1), mx, my, a, b, c, o, p_min, f0, f1, f2, f3, kl)
-                for m in range(10):
-                    pair_grad[k, m] = gr[m]
+                for h in range((bx0 - x0) // HALF, (bx1 - x0 + HALF - 1) // HALF):
+                    ry0, ry1 = _rows(
+                        mx, my, a, b, c, p_min, max(bx0, x0 + h * HALF), min(bx1, x0 + (h + 1) * HALF), by0, by1, y0
+                    )
+                    if ry1 <= ry0:
+                        continue
+                    pair0, pair1 = (ry0 - y0) // 2, (ry1 - y0 + 1) // 2
+                    lo, n = _U(h) * _UHALF_PIX + _U(pair0) * _UPAIR, _U(pair1 - pair0) << _UPAIR_SHIFT
+                    f0, f1, f2, f3 = gp[g, G_F0], gp[g, G_F0 + 1], gp[g, G_F0 + 2], gp[g, G_F0 + 3]
+                    kl = F32(k - s)
+                    gr = _backward_span(
+                        st, lo, n, F32(bx0), F32(bx1), F32(by0), F32(by1), mx, my, a, b, c, o, p_min, f0, f1, f2, f3, kl
+                    )
+                    for m in range(10):
+                        pair_grad[k, m] += gr[m]
 
 
 @njit(cache=True)
