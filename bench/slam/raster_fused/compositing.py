@@ -49,7 +49,8 @@ B_SIZE = 9 * NPIX
 # the forward counts a tile's saturated pixels (to stop early) once per this many list entries; an
 # entry after saturation changes nothing, so the period changes no result
 SATURATION_CHECK = 8
-# the backward walks a tile's list back to front and prefetches the Gaussian this many entries ahead
+# the compositing kernels walk a tile's list and prefetch the Gaussian this many entries ahead (a Gaussian's
+# row of gp is a cache line read at random)
 PREFETCH_AHEAD = 8
 # one row per Gaussian, one 64-byte cache line: what the compositing reads of a Gaussian
 G_MX, G_MY, G_A, G_B, G_C, G_O, G_F0, G_EX, G_EY, G_PMIN = 0, 1, 2, 3, 4, 5, 6, 10, 11, 12
@@ -284,6 +285,7 @@ def composite_fwd(
     and column half, so per pixel the order stays front to back. With ``stats`` it also fills, per
     pair, the coverage sum over the tile, the pixels contributed to and the largest blending weight.
     """
+    gp_addr, gp_row = _U(gp.ctypes.data), _U(gp.strides[0])
     for th in prange(bounds.shape[0] - 1):
         st = _aligned_state(S_SIZE)
         for j in range(bounds[th], bounds[th + 1]):
@@ -296,10 +298,10 @@ def composite_fwd(
                 st[S_A0 + i] = st[S_A1 + i] = st[S_A2 + i] = st[S_A3 + i] = F32(0.0)
                 st[S_LAST + i] = F32(-1.0)
                 st[S_DONE + i] = F32(0.0)
-            s = tile_start[t]
+            s, e = tile_start[t], tile_start[t + 1]
             n_pix = (x1 - x0) * (y1 - y0)
             n_active = n_pix
-            for k in range(s, tile_start[t + 1]):
+            for k in range(s, e):
                 if (k - s) % SATURATION_CHECK == 0 and n_active > 0:
                     n_done = F32(0.0)
                     for i in range(NPIX):
@@ -308,6 +310,8 @@ def composite_fwd(
                 if n_active == 0 and not stats:
                     break
                 g = gid[k]
+                if k + PREFETCH_AHEAD < e:
+                    _prefetch(gp_addr + _U(gid[k + PREFETCH_AHEAD]) * gp_row)  # type: ignore[call-arg]
                 mx, my = gp[g, G_MX], gp[g, G_MY]
                 a, b, c, o = gp[g, G_A], gp[g, G_B], gp[g, G_C], gp[g, G_O]
                 hits = 0
@@ -479,7 +483,6 @@ def composite_bwd(
             for k in range(k_last, s - 1, -1):
                 g = gid[k]
                 if k - PREFETCH_AHEAD >= s:
-                    # a Gaussian's row of gp is a cache line read at random: fetched a few entries early
                     _prefetch(gp_addr + _U(gid[k - PREFETCH_AHEAD]) * gp_row)  # type: ignore[call-arg]
                 mx, my = gp[g, G_MX], gp[g, G_MY]
                 bx0, bx1, by0, by1 = pixel_box(mx, my, gp[g, G_EX], gp[g, G_EY], x0, x1, y0, y1)
