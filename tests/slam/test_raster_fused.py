@@ -331,14 +331,36 @@ def test_pixel_loops_compile_to_vector_code():
     flags = {k: v for k, v in rf.KERNEL_OPTIONS.items() if k != "cache"}
     f32, u64 = np.float32, np.uint64
     gaussian = [f32(v) for v in (0.0, 3.0, 1.0, 1.0, 1.0, 0.0, 1.0, 0.5, -5.0, 1.0, 1.0, 1.0, 1.0, 3.0)]
-    for span, size in ((rf._forward_span, rf.S_SIZE), (rf._backward_span, rf.B_SIZE)):
+    rows = [f32(0.0), f32(16.0)]  # the backward also masks to the box's rows
+    for span, size, args in (
+        (rf._forward_span, rf.S_SIZE, gaussian),
+        (rf._backward_span, rf.B_SIZE, gaussian[:2] + rows + gaussian[2:]),
+    ):
         fn = njit(**flags)(span.py_func)
-        fn(np.zeros(size, f32), u64(0), u64(16), *gaussian)
+        fn(np.zeros(size, f32), u64(0), u64(16), *args)
         asm = fn.inspect_asm(fn.signatures[0])
         # packed float32 arithmetic on 8 lanes (AVX2) or 16 (AVX-512, which LLVM picks on hosts that
         # run it at full width, e.g. Zen 5)
         packed = re.findall(r"\bv\w+ps\s[^\n]*%[yz]mm", asm)
         assert len(packed) > 60, f"{span.__name__}: {len(packed)} packed AVX2/AVX-512 instructions"
+
+    # the backward's span as composite_bwd calls it, whole pairs of rows: no scalar remainder loop (a scalar
+    # copy of the loop body has dozens of scalar float ops; what is left is the sums' reductions and
+    # the gradients computed from them)
+    span = rf._backward_span
+
+    @njit(**flags)
+    def whole_rows(st, pairs, g, out):
+        g0, g1, g2, g3, g4, g5, g6, g7, g8, g9, g10, g11, g12, g13, g14, g15 = g
+        n = u64(pairs) << rf._UPAIR_SHIFT
+        gr = span(st, u64(0), n, g0, g1, g2, g3, g4, g5, g6, g7, g8, g9, g10, g11, g12, g13, g14, g15)
+        for m in range(10):
+            out[m] = gr[m]
+
+    whole_rows(np.zeros(rf.B_SIZE, f32), 2, tuple(gaussian[:2] + rows + gaussian[2:]), np.zeros(10, f32))
+    asm = whole_rows.inspect_asm(whole_rows.signatures[0])
+    scalar = re.findall(r"\bv(?:fn?m(?:add|sub)\d+|add|sub|mul|div|min|max)ss\b", asm)
+    assert len(scalar) < 40, f"composite_bwd's span: {len(scalar)} scalar float32 instructions (a remainder loop?)"
 
 
 _RENDER_TO = """

@@ -24,26 +24,34 @@ LN255 = F32(math.log(255.0))
 # - indices are unsigned: numba wraps negative signed indices, which makes every load a select;
 # - error_model="numpy": with Python's model a float division carries a zero-division branch;
 # - no branch in the loop body: a lane that takes no part adds zero and keeps its state (selects);
-# - a span is whole rows of 8 px, so the vector loop has no scalar remainder.
-# A tile's pixels are stored as two 8-px column halves, each row-major, so the rows of a Gaussian's
-# box inside one half are one contiguous span whose length is a multiple of 8.
+# - a span is whole rows of pixels. A tile's pixels are stored as two 8-px column halves, each
+#   row-major, so the rows of a Gaussian's box inside one half are one contiguous span whose length
+#   is a multiple of 8. The backward widens its spans to whole pairs of rows from an even row (16
+#   lanes, 64 bytes) and writes the length as pairs << 4: LLVM then sees a multiple of 16 lanes and
+#   emits no remainder loop (a span of an odd number of rows ran its last 8 lanes through a 4-lane
+#   epilogue, then a scalar loop), and every vector load and store is aligned.
 _U = np.uint64
 HALF = TILE // 2
 NPIX = TILE * TILE
 _UH = _U(HALF)
 _UHALF_PIX = _U(NPIX // 2)
+_UPAIR = _U(2 * HALF)  # two 8-px rows of a half: 16 lanes
+_UPAIR_SHIFT = _U(4)  # log2(16): n << _UPAIR_SHIFT is n pairs of rows
 # forward state: pixel coordinates, transmittance, accumulated features, last contributor (an index
 # into the tile's list, -1 none), saturated flag, and the visiting Gaussian's blending weight
 S_X, S_Y, S_T, S_A0, S_A1, S_A2, S_A3, S_LAST, S_DONE, S_W = (_U(j * NPIX) for j in range(10))
 S_SIZE = 10 * NPIX
-# backward state: pixel coordinates, transmittance in front of the visited Gaussian, last
-# contributor, dL/d acc (4), dL/dT_final * T_final, the features accumulated behind the visited
-# Gaussian (4), and the visited Gaussian's w and u (see ``_backward_span``)
-B_X, B_Y, B_TC, B_LK, B_Q0, B_Q1, B_Q2, B_Q3, B_QT, B_B0, B_B1, B_B2, B_B3, B_W, B_U = (_U(j * NPIX) for j in range(15))
-B_SIZE = 15 * NPIX
+# backward state (the forward's layout): pixel coordinates, transmittance in front of the visited
+# Gaussian, last contributor, q = dL/d acc (4), and r = q . (the features accumulated behind
+# the visited Gaussian) + dL/dT_final * T_final, the one number of what lies behind that dL/dalpha needs
+B_X, B_Y, B_TC, B_LK, B_Q0, B_Q1, B_Q2, B_Q3, B_R = (_U(j * NPIX) for j in range(9))
+B_SIZE = 9 * NPIX
 # the forward counts a tile's saturated pixels (to stop early) once per this many list entries; an
 # entry after saturation changes nothing, so the period changes no result
 SATURATION_CHECK = 8
+# the compositing kernels walk a tile's list and prefetch the Gaussian this many entries ahead (a Gaussian's
+# row of gp is a cache line read at random)
+PREFETCH_AHEAD = 8
 # one row per Gaussian, one 64-byte cache line: what the compositing reads of a Gaussian
 G_MX, G_MY, G_A, G_B, G_C, G_O, G_F0, G_EX, G_EY, G_PMIN = 0, 1, 2, 3, 4, 5, 6, 10, 11, 12
 G_SIZE = 16
@@ -60,6 +68,25 @@ def _bits_to_f32(typingctx, bits):  # pragma: no cover - compiled
 
     def codegen(context, builder, signature, args):
         return builder.bitcast(args[0], llvm_ir.FloatType())
+
+    return sig, codegen
+
+
+@intrinsic
+def _prefetch(typingctx, address):  # pragma: no cover - compiled
+    """A hint that the cache line at the integer ``address`` is read soon (``llvm.prefetch``); no value,
+    and no effect on any result."""
+    sig = types.void(types.uintp)
+
+    def codegen(context, builder, signature, args):
+        i8p = llvm_ir.IntType(8).as_pointer()
+        i32 = llvm_ir.IntType(32)
+        fnty = llvm_ir.FunctionType(llvm_ir.VoidType(), [i8p, i32, i32, i32])
+        fn = builder.module.globals.get("llvm.prefetch.p0") or llvm_ir.Function(
+            builder.module, fnty, "llvm.prefetch.p0"
+        )
+        builder.call(fn, [builder.inttoptr(args[0], i8p), i32(0), i32(3), i32(1)])  # read, keep, data
+        return context.get_dummy_value()
 
     return sig, codegen
 
@@ -136,33 +163,28 @@ def pixel_box(mx, my, ex, ey, x0, x1, y0, y1):  # pragma: no cover - compiled
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
-def _row_meets(y, mx, my, a, b, c, slope, q2, dx0, dx1):  # pragma: no cover - compiled
-    """Whether row y of the ellipse a dx^2 + 2 b dx dy + c dy^2 <= q2 reaches dx in [dx0, dx1] (float64):
-    the quadratic is convex in dx, so its least value there is at its minimiser slope dy, clamped."""
-    dy = float(y) - my
-    dx = min(max(slope * dy, dx0), dx1)
-    return a * dx * dx + 2.0 * b * dx * dy + c * dy * dy <= q2
+def _rows(mx, my, a, b, c, p_min, cx0, cx1, by0, by1, y0):  # pragma: no cover - compiled
+    """Rows [lo, hi) of [by0, by1) where the 1/255 ellipse meets columns [cx0, cx1): the tile's 16 rows
+    tested at once (float64 vector code, no branch).
 
-
-@njit(inline="always", **KERNEL_OPTIONS)
-def _rows(mx, my, a, b, c, p_min, cx0, cx1, by0, by1):  # pragma: no cover - compiled
-    """Rows [lo, hi) of [by0, by1) where the 1/255 ellipse meets columns [cx0, cx1): the backward's spans
-    (the forward takes the box's rows whole: there the tests below cost more than the lanes they save).
-
-    A rotated, elongated ellipse leaves the corners of its box empty; the rows dropped here are
-    ones where every pixel fails the exact test anyway (power < p_min, i.e. Q > -2 p_min; the
-    threshold and the columns are widened, so float32 rounding of the exact test cannot matter)."""
+    Row y meets the ellipse a dx^2 + 2 b dx dy + c dy^2 <= q2 within dx in [dx0, dx1] if the
+    quadratic's least value there, at its minimiser slope dy clamped, is within the threshold (it is
+    convex in dx). The threshold and the columns are widened, so a row dropped here is one where
+    every pixel fails the exact test (power < p_min) whatever float32's rounding; a row kept beyond
+    those adds exact zeros."""
     q2 = -2.0 * float(p_min) * 1.001 + 0.01
     mxd, myd, ad, bd, cd = float(mx), float(my), float(a), float(b), float(c)
     slope = -bd / ad
     dx0, dx1 = float(cx0) - 0.01 - mxd, float(cx1) - 0.99 - mxd
-    lo = by0
-    while lo < by1 and not _row_meets(lo, mxd, myd, ad, bd, cd, slope, q2, dx0, dx1):
-        lo += 1
-    hi = by1
-    while hi > lo and not _row_meets(hi - 1, mxd, myd, ad, bd, cd, slope, q2, dx0, dx1):
-        hi -= 1
-    return lo, hi
+    lo = by1
+    hi = by0
+    for y in range(y0, y0 + TILE):
+        dy = float(y) - myd
+        dx = min(max(slope * dy, dx0), dx1)
+        meets = (ad * dx * dx + 2.0 * bd * dx * dy + cd * dy * dy <= q2) & (y >= by0) & (y < by1)
+        lo = min(lo, y if meets else by1)
+        hi = max(hi, y + 1 if meets else by0)
+    return lo, max(lo, hi)
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
@@ -263,6 +285,7 @@ def composite_fwd(
     and column half, so per pixel the order stays front to back. With ``stats`` it also fills, per
     pair, the coverage sum over the tile, the pixels contributed to and the largest blending weight.
     """
+    gp_addr, gp_row = _U(gp.ctypes.data), _U(gp.strides[0])
     for th in prange(bounds.shape[0] - 1):
         st = _aligned_state(S_SIZE)
         for j in range(bounds[th], bounds[th + 1]):
@@ -275,10 +298,10 @@ def composite_fwd(
                 st[S_A0 + i] = st[S_A1 + i] = st[S_A2 + i] = st[S_A3 + i] = F32(0.0)
                 st[S_LAST + i] = F32(-1.0)
                 st[S_DONE + i] = F32(0.0)
-            s = tile_start[t]
+            s, e = tile_start[t], tile_start[t + 1]
             n_pix = (x1 - x0) * (y1 - y0)
             n_active = n_pix
-            for k in range(s, tile_start[t + 1]):
+            for k in range(s, e):
                 if (k - s) % SATURATION_CHECK == 0 and n_active > 0:
                     n_done = F32(0.0)
                     for i in range(NPIX):
@@ -287,6 +310,8 @@ def composite_fwd(
                 if n_active == 0 and not stats:
                     break
                 g = gid[k]
+                if k + PREFETCH_AHEAD < e:
+                    _prefetch(gp_addr + _U(gid[k + PREFETCH_AHEAD]) * gp_row)  # type: ignore[call-arg]
                 mx, my = gp[g, G_MX], gp[g, G_MY]
                 a, b, c, o = gp[g, G_A], gp[g, G_B], gp[g, G_C], gp[g, G_O]
                 hits = 0
@@ -350,53 +375,48 @@ def composite_fwd(
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
-def _backward_span(st, lo, hi, fx0, fx1, mx, my, a, b, c, o, p_min, f0, f1, f2, f3, kl):  # pragma: no cover
-    """One Gaussian over state pixels [lo, hi), back to front: its 10 gradient sums over the span.
+def _backward_span(st, lo, n, fx0, fx1, fy0, fy1, mx, my, a, b, c, o, p_min, f0, f1, f2, f3, kl):  # pragma: no cover
+    """One Gaussian over backward state pixels [lo, lo + n), masked to its box [fx0, fx1) x [fy0, fy1),
+    back to front: its 10 gradient sums there.
 
-    Two loops: the first updates each pixel's state and keeps its blending weight w and
-    u = dL/dalpha * exp(power), the second sums them. In one loop the ten running sums and the
-    per-Gaussian constants need more than AVX2's 16 vector registers, and the spills cost more
-    than the second pass. The mean and conic gradients are linear in (a, b, c) and o, so only the
-    moments u dx, u dy, u dx^2, u dy^2, u dx dy are summed."""
-    for i in range(lo, hi):
+    One loop updates each pixel's state and adds its terms to the sums (the Gaussian's constants
+    that find no register are read from the stack as operands). Per pixel,
+    dL/dalpha = T_before q . f - (q . behind + dL/dT_final T_final) / (1 - alpha), with q = dL/d acc
+    and behind the features accumulated behind the Gaussian: only the bracket's one number, r, is
+    carried from Gaussian to Gaussian (r += w q . f), not the four features behind. The mean and
+    conic gradients are linear in (a, b, c) and o, so only the moments u dx, u dy, u dx^2, u dy^2,
+    u dx dy of u = dL/dalpha * exp(power) are summed."""
+    s1 = s2 = sxx = syy = sxy = go = F32(0.0)
+    gf0 = gf1 = gf2 = gf3 = F32(0.0)
+    for j in range(n):
+        i = lo + j
         xv = st[B_X + i]
         dx = xv - mx
-        dy = st[B_Y + i] - my
+        yv = st[B_Y + i]
+        dy = yv - my
         power = F32(-0.5) * (a * dx * dx + c * dy * dy) - b * dx * dy
         gauss = exp_f32(power)
         raw = o * gauss
         alpha = min(raw, ALPHA_MAX)
-        ok = (xv >= fx0) & (xv < fx1) & (st[B_LK + i] >= kl) & (power >= p_min) & (raw >= ALPHA_MIN)
-        okf = F32(1.0) if ok else F32(0.0)
+        box = (xv >= fx0) & (xv < fx1) & (yv >= fy0) & (yv < fy1)
+        ok = box & (st[B_LK + i] >= kl) & (power >= p_min) & (raw >= ALPHA_MIN)
         inv_one_m = F32(1.0) / (F32(1.0) - alpha)
         tcur = st[B_TC + i]
         t_before = tcur * inv_one_m
-        w = alpha * t_before * okf
+        w = alpha * t_before if ok else F32(0.0)
         q0, q1, q2, q3 = st[B_Q0 + i], st[B_Q1 + i], st[B_Q2 + i], st[B_Q3 + i]
-        b0, b1, b2, b3 = st[B_B0 + i], st[B_B1 + i], st[B_B2 + i], st[B_B3 + i]
+        qf = q0 * f0 + q1 * f1 + q2 * f2 + q3 * f3
+        r = st[B_R + i]
         # d acc / d alpha = f T_before - behind / (1 - alpha); d T_final / d alpha = -T_final / (1 - alpha)
-        g_alpha = t_before * (q0 * f0 + q1 * f1 + q2 * f2 + q3 * f3) - inv_one_m * (
-            q0 * b0 + q1 * b1 + q2 * b2 + q3 * b3 + st[B_QT + i]
-        )
-        st[B_B0 + i] = b0 + w * f0
-        st[B_B1 + i] = b1 + w * f1
-        st[B_B2 + i] = b2 + w * f2
-        st[B_B3 + i] = b3 + w * f3
-        st[B_TC + i] = tcur * (inv_one_m * okf + (F32(1.0) - okf))
-        st[B_W + i] = w
+        g_alpha = t_before * qf - inv_one_m * r
+        st[B_R + i] = r + w * qf
+        st[B_TC + i] = t_before if ok else tcur
         # the clamp at 0.99 passes no gradient
-        st[B_U + i] = g_alpha * gauss * (F32(1.0) if ok & (raw < ALPHA_MAX) else F32(0.0))
-    s1 = s2 = sxx = syy = sxy = go = F32(0.0)
-    gf0 = gf1 = gf2 = gf3 = F32(0.0)
-    for i in range(lo, hi):
-        dx = st[B_X + i] - mx
-        dy = st[B_Y + i] - my
-        w = st[B_W + i]
-        u = st[B_U + i]
-        gf0 += w * st[B_Q0 + i]
-        gf1 += w * st[B_Q1 + i]
-        gf2 += w * st[B_Q2 + i]
-        gf3 += w * st[B_Q3 + i]
+        u = g_alpha * gauss if ok & (raw < ALPHA_MAX) else F32(0.0)
+        gf0 += w * q0
+        gf1 += w * q1
+        gf2 += w * q2
+        gf3 += w * q3
         go += u
         s1 += u * dx
         s2 += u * dy
@@ -423,11 +443,13 @@ def composite_bwd(
     gid, tile_start, gp, width, height, tiles_x, order, bounds, t_final, last, g_acc, g_t, pair_grad
 ):  # pragma: no cover - compiled
     """Per tile, its list back to front from the last contributor (3DGS's backward pass), each
-    Gaussian over the rows of its box as in ``composite_fwd``.
+    Gaussian over the rows of its box that its ellipse meets, in each column half, widened to whole
+    pairs of rows (the rows added are outside the box or fail the exact test: they add exact zeros).
 
     pair_grad [P, 10]: d/d(mean2d x, y), d/d(conic a, b, c), d/d opacity, d/d features (4) of the
     pair's Gaussian, summed over the tile's pixels in a fixed order.
     """
+    gp_addr, gp_row = _U(gp.ctypes.data), _U(gp.strides[0])
     for th in prange(bounds.shape[0] - 1):
         st = _aligned_state(B_SIZE)
         for j in range(bounds[th], bounds[th + 1]):
@@ -443,7 +465,6 @@ def composite_bwd(
                 y = y0 + (i // HALF) % TILE
                 st[B_X + i] = F32(x)
                 st[B_Y + i] = F32(y)
-                st[B_B0 + i] = st[B_B1 + i] = st[B_B2 + i] = st[B_B3 + i] = F32(0.0)
                 inside = y < y1 and x < x1
                 p = y * width + x if inside else 0
                 # a pixel no gradient reaches (outside tracking's mask, say) adds exact zeros: none walked
@@ -458,9 +479,11 @@ def composite_bwd(
                 st[B_Q1 + i] = g_acc[p, 1] if inside else F32(0.0)
                 st[B_Q2 + i] = g_acc[p, 2] if inside else F32(0.0)
                 st[B_Q3 + i] = g_acc[p, 3] if inside else F32(0.0)
-                st[B_QT + i] = g_t[p] * t_final[p] if inside else F32(0.0)
+                st[B_R + i] = g_t[p] * t_final[p] if inside else F32(0.0)
             for k in range(k_last, s - 1, -1):
                 g = gid[k]
+                if k - PREFETCH_AHEAD >= s:
+                    _prefetch(gp_addr + _U(gid[k - PREFETCH_AHEAD]) * gp_row)  # type: ignore[call-arg]
                 mx, my = gp[g, G_MX], gp[g, G_MY]
                 bx0, bx1, by0, by1 = pixel_box(mx, my, gp[g, G_EX], gp[g, G_EY], x0, x1, y0, y1)
                 if by1 <= by0:
@@ -469,27 +492,16 @@ def composite_bwd(
                 p_min = gp[g, G_PMIN]
                 for h in range((bx0 - x0) // HALF, (bx1 - x0 + HALF - 1) // HALF):
                     ry0, ry1 = _rows(
-                        mx, my, a, b, c, p_min, max(bx0, x0 + h * HALF), min(bx1, x0 + (h + 1) * HALF), by0, by1
+                        mx, my, a, b, c, p_min, max(bx0, x0 + h * HALF), min(bx1, x0 + (h + 1) * HALF), by0, by1, y0
                     )
-                    lo, hi = _span(h, ry0, ry1, y0)
+                    if ry1 <= ry0:
+                        continue
+                    pair0, pair1 = (ry0 - y0) // 2, (ry1 - y0 + 1) // 2
+                    lo, n = _U(h) * _UHALF_PIX + _U(pair0) * _UPAIR, _U(pair1 - pair0) << _UPAIR_SHIFT
+                    f0, f1, f2, f3 = gp[g, G_F0], gp[g, G_F0 + 1], gp[g, G_F0 + 2], gp[g, G_F0 + 3]
+                    kl = F32(k - s)
                     gr = _backward_span(
-                        st,
-                        lo,
-                        hi,
-                        F32(bx0),
-                        F32(bx1),
-                        mx,
-                        my,
-                        a,
-                        b,
-                        c,
-                        o,
-                        p_min,
-                        gp[g, G_F0],
-                        gp[g, G_F0 + 1],
-                        gp[g, G_F0 + 2],
-                        gp[g, G_F0 + 3],
-                        F32(k - s),
+                        st, lo, n, F32(bx0), F32(bx1), F32(by0), F32(by1), mx, my, a, b, c, o, p_min, f0, f1, f2, f3, kl
                     )
                     for m in range(10):
                         pair_grad[k, m] += gr[m]
