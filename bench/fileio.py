@@ -5,16 +5,30 @@ a file elsewhere) would have the run overwrite, or append to, whatever it points
 refuses such a link (``O_NOFOLLOW``) where a file is appended or written in place; files replaced by
 rename (``bench.run.record.write_text``) replace the link itself. ``planted_links`` finds the links a
 run dir holds before the run writes anything (``bench.run.lifecycle`` refuses the run then).
+
+``content_digest`` names an input file by its bytes, for the keys that must survive a copy, a restore or a
+remount (which keep bytes, not mtimes): the resume key's input fingerprint and the stereo depth cache.
 """
 
 from __future__ import annotations
 
 import errno
+import hashlib
 import os
 from pathlib import Path
 from typing import IO, Any
 
 from bench.errors import ConfigError
+
+
+def content_digest(path: Path) -> str:
+    """BLAKE2b of the file's bytes, hex, read in 1 MiB chunks."""
+    digest = hashlib.blake2b()
+    with Path(path).open("rb") as fh:  # hashlib.file_digest is Python 3.11+; the package supports 3.10
+        while chunk := fh.read(1 << 20):
+            digest.update(chunk)
+    return digest.hexdigest()
+
 
 _MODES = {
     "w": os.O_WRONLY | os.O_CREAT | os.O_TRUNC,

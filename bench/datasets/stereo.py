@@ -29,6 +29,7 @@ from bench.config.settings import setting
 from bench.datasets import realio
 from bench.datasets.base import RecordedConfig, TimedSequence
 from bench.errors import ConfigError
+from bench.fileio import content_digest
 
 CACHE_VERSION = 1  # bump when the depth pipeline changes in a way the key does not capture
 DEFAULT_CACHE_DIR = "~/.cache/pocketbench/depth"
@@ -181,10 +182,9 @@ class DepthCache:
 def _file_id(path: Path) -> list[Any]:
     """An image by its bytes: [size, BLAKE2b digest]; [None, None] for a missing file (its read then fails)."""
     try:
-        data = path.read_bytes()
+        return [path.stat().st_size, content_digest(path)]
     except OSError:
         return [None, None]
-    return [len(data), hashlib.blake2b(data, digest_size=16).hexdigest()]
 
 
 class StereoSequence(TimedSequence):

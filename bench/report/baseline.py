@@ -23,15 +23,20 @@ class Baseline:
     by_preset: dict[tuple[str, float | None], Variant] = field(default_factory=dict)
     candidates: tuple[Variant, ...] = ()  # every baseline row, of every preset and input
 
+    @property
+    def several_inputs(self) -> bool:
+        """Whether the baseline ran several inputs (image sizes, frame windows)."""
+        return len({v.input for v in self.candidates}) > 1
+
     def for_variant(self, variant: Variant) -> Variant | None:
         """The baseline of the same preset (and keep ratio where it ran several); presets never mix. Where the
-        baseline ran several inputs (image sizes, frame windows), the one of the variant's input, and None where
-        the baseline never read that input: a row is never compared with a run of another input."""
-        if len({v.input for v in self.candidates}) > 1:
+        baseline ran several inputs (image sizes, frame windows), the same rule among the rows of the variant's
+        input, and None where the baseline never read that input: a row is never compared with a run of another
+        input."""
+        if self.several_inputs:
             same_input = [v for v in self.candidates if v.input == variant.input]
-            if not same_input:
-                return None
-            return _pick(same_input, variant)
+            own, _ = pick_baseline(same_input, self.default.strategy)
+            return None if own is None else own.for_variant(variant)
         same = self.by_preset.get((variant.slam_preset, variant.keep_ratio))
         if same is not None:
             return same
@@ -39,14 +44,6 @@ class Baseline:
         if in_preset:
             return ([v for v in in_preset if v.keep_ratio in (None, 1.0)] or in_preset)[0]
         return self.by_keep.get(variant.keep_ratio, self.default)
-
-
-def _pick(candidates: list[Variant], variant: Variant) -> Variant:
-    """Among baseline rows of one input: the same preset and keep ratio, else the same preset's unpruned row,
-    else the first."""
-    in_preset = [v for v in candidates if v.slam_preset == variant.slam_preset] or candidates
-    same_keep = [v for v in in_preset if v.keep_ratio == variant.keep_ratio]
-    return (same_keep or [v for v in in_preset if v.keep_ratio in (None, 1.0)] or in_preset)[0]
 
 
 def pick_baseline(found: list[Variant], baseline: str) -> tuple[Baseline | None, str | None]:

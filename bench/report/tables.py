@@ -192,7 +192,7 @@ def performance_table(
     if base is not None:
         blocks.append(relative_block("FPS vs baseline", "times", fps, fps_cells, base, fps_paper))
         several = len(base.by_keep) > 1
-        if len({v.input for v in base.candidates}) > 1:
+        if base.several_inputs:
             notes.append(
                 "Baseline: the baseline row of the same input ({...}: image size, frame window); a row whose input "
                 "the baseline never read has no relative cells."

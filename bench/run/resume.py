@@ -15,6 +15,8 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+from bench.fileio import content_digest
+
 SMALL_FILE_BYTES = 1 << 20  # text files (calib, lists, ground truth) keep a digest each; larger ones share one
 FINISHED = ("ok", "lost")  # statuses a rerun keeps; failed and interrupted runs are redone
 
@@ -39,7 +41,7 @@ def input_fingerprint(paths: Iterable[Path]) -> dict[str, str]:
             out[str(path)] = "missing"
             continue
         if path.suffix.lower() in (".png", ".jpg", ".jpeg") or st.st_size > SMALL_FILE_BYTES:
-            content = _content_digest(path)
+            content = content_digest(path)
             images.update(f"{path}\0{st.st_size}\0{content}\n".encode())
             n_images += 1
         else:
@@ -47,14 +49,6 @@ def input_fingerprint(paths: Iterable[Path]) -> dict[str, str]:
     if n_images:
         out[f"images ({n_images} files)"] = images.hexdigest()[:16]
     return out
-
-
-def _content_digest(path: Path) -> str:
-    digest = hashlib.blake2b()
-    with path.open("rb") as fh:  # hashlib.file_digest is Python 3.11+; the package supports 3.10
-        while chunk := fh.read(1 << 20):
-            digest.update(chunk)
-    return digest.hexdigest()
 
 
 def resume_key(config_hash: str, code: dict[str, Any], inputs: dict[str, str]) -> dict[str, Any]:
