@@ -60,6 +60,7 @@ class GaussianMap:
         lrs: dict[str, float] | None = None,
         extra: dict[str, ParamSpec] | None = None,
         state_dtypes: dict[str, torch.dtype] | None = None,
+        adam_fused: bool = False,
     ):
         self.device = device
         self.lrs = dict(DEFAULT_LRS if lrs is None else lrs)
@@ -75,8 +76,11 @@ class GaussianMap:
             k: torch.empty(0, dtype=dt, device=device) for k, dt in (state_dtypes or {}).items()
         }
         self.optimizer = torch.optim.Adam(
-            [{"params": [p], "lr": self.lrs[k], "name": k} for k, p in self.params.items()], eps=1e-15
+            [{"params": [p], "lr": self.lrs[k], "name": k} for k, p in self.params.items()],
+            eps=1e-15,
+            fused=adam_fused or None,  # None: torch's per-op default (``slam.adam_fused``)
         )
+        self.adam_fused = adam_fused
 
     def __len__(self) -> int:
         return self.params["means"].shape[0]

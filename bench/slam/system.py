@@ -82,7 +82,11 @@ class System:
         # no result that matters and keeps the optimiser step from dominating a CPU run
         torch.set_flush_denormal(True)
         self.map = GaussianMap(
-            device, lrs=asdict(cfg.lrs), extra=strategy.extra_params(), state_dtypes=strategy.state_spec()
+            device,
+            lrs=asdict(cfg.lrs),
+            extra=strategy.extra_params(),
+            state_dtypes=strategy.state_spec(),
+            adam_fused=cfg.adam_fused,
         )
         self.map.state["_track_grad_sum"] = torch.empty(0, device=device)
         self.map.state["_track_grad_n"] = torch.empty(0, device=device)

@@ -7,9 +7,12 @@ import torch
 from bench.slam.gaussians import GaussianMap, ParamSpec
 
 
-def make_map(n: int = 6) -> GaussianMap:
+def make_map(n: int = 6, adam_fused: bool = False) -> GaussianMap:
     g = GaussianMap(
-        torch.device("cpu"), extra={"mask_logits": ParamSpec(init=2.0, lr=0.1)}, state_dtypes={"score": torch.float32}
+        torch.device("cpu"),
+        extra={"mask_logits": ParamSpec(init=2.0, lr=0.1)},
+        state_dtypes={"score": torch.float32},
+        adam_fused=adam_fused,
     )
     ar = torch.arange(n, dtype=torch.float32)
     g.add(
@@ -82,3 +85,28 @@ def test_state_bytes_counts_params_grads_moments_and_state():
     assert g.state_bytes() == expected
     step(g)
     assert g.state_bytes() == expected + 3 * n_floats * 4  # + grads + exp_avg + exp_avg_sq
+
+
+def test_fused_adam_steps_as_the_per_op_adam_to_float_rounding_and_survives_remove_and_add():
+    """``slam.adam_fused``: the same update as torch's per-op Adam (differences at float rounding only),
+    through a remove and an add that carry the moments."""
+    maps = {}
+    for fused in (False, True):
+        g = make_map(40, adam_fused=fused)
+        for _ in range(3):
+            step(g)
+        g.remove(torch.arange(40) % 3 != 0)
+        step(g)
+        maps[fused] = g
+    assert maps[True].optimizer.defaults["fused"] and not maps[False].optimizer.defaults["fused"]
+    for k, p in maps[False].params.items():
+        q = maps[True].params[k]
+        torch.testing.assert_close(q.detach(), p.detach(), rtol=1e-6, atol=1e-6)
+        torch.testing.assert_close(
+            maps[True].optimizer.state[q]["exp_avg_sq"], maps[False].optimizer.state[p]["exp_avg_sq"]
+        )
+
+
+def test_the_map_builds_fused_adam_when_asked():
+    assert GaussianMap(torch.device("cpu"), adam_fused=True).optimizer.defaults["fused"]
+    assert not GaussianMap(torch.device("cpu")).optimizer.defaults["fused"]
