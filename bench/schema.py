@@ -346,7 +346,12 @@ METRIC_FIELDS: tuple[Field, ...] = (
         "measured). Files on disk (`disk_peak_mib`) are not in it",
     ),
     Field(PEAK_SOURCE_FIELD, "", f"`{'`, `'.join(PEAK_SOURCES)}`: the first available on the device", "text"),
-    Field("memory_method", "", "how the peaks were measured (`cpu_rss`, `torch_live`)", "object"),
+    Field(
+        "memory_method",
+        "",
+        "how the peaks were measured (`cpu_rss`, `torch_live`; `malloc`: the `memory.malloc` policy that held)",
+        "object",
+    ),
     Field(
         DISK_PEAK_FIELD,
         "MiB",

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import mmap
+import subprocess
+import sys
 import time
 
 import pytest
@@ -190,3 +192,41 @@ def test_a_paused_stretch_is_left_out_of_the_window_peak(method: str) -> None:
         peak = probe.end_window()["torch_live_peak_mib"]
         assert peak - base == pytest.approx(32, abs=1)
         assert _window(probe)["torch_live_peak_mib"] - base < 1  # the next window starts clean
+
+
+_REUSE_PROBE = """
+import resource, sys, torch
+from bench.measure.memory import set_malloc_policy
+print(set_malloc_policy(sys.argv[1]))
+torch.set_num_threads(1)
+faults = []
+for _ in range(20):  # an iteration's worth of tensors of a few sizes, each written, freed in another order
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    t = torch.empty(4 * 2**20).fill_(1.0)  # [4 Mi] float32, 16 MiB
+    u = torch.empty(3 * 2**20).fill_(2.0)  # 12 MiB
+    del t
+    w = torch.empty(5 * 2**20).fill_(3.0)  # 20 MiB
+    del u, w
+    faults.append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+print(sum(faults[10:]))
+"""
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="glibc's mallopt")
+def test_malloc_retain_reuses_freed_pages_and_system_faults_them_in_again() -> None:
+    """``memory.malloc``: under ``retain`` the tensors of later iterations reuse the pages the earlier ones
+    freed (after a few iterations, no page fault); under ``system`` each is a fresh mapping (a fault a page)."""
+    faults = {}
+    for policy in ("retain", "system"):
+        out = subprocess.run(
+            [sys.executable, "-c", _REUSE_PROBE, policy], capture_output=True, text=True, check=True
+        ).stdout.split()
+        assert out[0] == policy
+        faults[policy] = int(out[1])
+    pages = 10 * 48 * 2**20 // mmap.PAGESIZE  # written in the last 10 iterations
+    assert faults["retain"] < pages // 100 and faults["system"] > pages // 2, faults
+
+
+def test_malloc_policy_rejects_an_unknown_name() -> None:
+    with pytest.raises(ConfigError, match="memory.malloc: expected one of retain, system, found 'lazy'"):
+        measure.set_malloc_policy("lazy")

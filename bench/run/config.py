@@ -26,6 +26,7 @@ from bench.config.settings import expected as expected_in
 from bench.datasets import GROUP as DATASET_GROUP
 from bench.datasets import schema
 from bench.errors import ConfigError, StrategyError
+from bench.measure.memory import MALLOC_POLICIES
 from bench.run.checkpoint import CheckpointConfig
 from bench.run.export import SAVE_MAPS
 from bench.slam.config import SlamConfig
@@ -40,6 +41,10 @@ DETERMINISM = ("strict", "fast")  # bench/run/determinism.py:MODES
 @dataclass
 class MemoryConfig:
     torch_live: bool = True  # track peak bytes of live torch tensors on CPU (see bench/measure/memory.py)
+    # how the process holds freed memory (bench/measure/memory.py:set_malloc_policy): retain = glibc keeps freed
+    # blocks up to 32 MiB mapped for reuse (no page faults on every iteration's tensors; RSS then reads the heap's
+    # high-water); system = glibc's own thresholds, as every run before it. Speed and RSS only: no result changes
+    malloc: str = setting("retain", "str", choices=MALLOC_POLICIES)
 
 
 @dataclass

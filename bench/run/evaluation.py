@@ -57,7 +57,11 @@ def finish(
     # per-phase seconds of the frame loop, warm-up frames included: they sum to about
     # slam_wall_s + warmup_s (less the frame handling outside the phases); refinement is refine_s
     metrics["phase_s"] = {k: round(v, 3) for k, v in timer.totals().items() if k != "refine"}
-    metrics["memory_method"] = {"cpu_rss": parts.probe.rss_method, "torch_live": cfg.memory.torch_live}
+    metrics["memory_method"] = {
+        "cpu_rss": parts.probe.rss_method,
+        "torch_live": cfg.memory.torch_live,
+        "malloc": parts.malloc,
+    }
     metrics.update(schema.memory_summary([*drive.windows, drive.tail], device.type))
     metrics.update(schema.regime_summary(drive.windows, (system.H, system.W), metrics[schema.PEAK_SOURCE_FIELD]))
     metrics["gaussians_final"] = len(system.map)

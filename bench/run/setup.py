@@ -16,7 +16,7 @@ import torch
 
 from bench.datasets import FrameSequence, open_sequence
 from bench.errors import ConfigError
-from bench.measure.memory import MemoryProbe
+from bench.measure.memory import MemoryProbe, set_malloc_policy
 from bench.measure.timing import PhaseTimer
 from bench.run import checkpoint as ckpt
 from bench.run.config import RunConfig
@@ -41,6 +41,7 @@ class RunSetup:
     viz: PruneViz | None = None  # viz.pruning
     lpips: Any = None  # what validate loaded from eval.lpips_weights; None: loaded at evaluation if at all
     keys: dict[str, Any] = field(default_factory=dict)  # the run block of metrics.json (bench.run.identity)
+    malloc: str = "system"  # the memory.malloc policy that holds (bench.measure.memory.set_malloc_policy)
 
 
 def open_seq(cfg: RunConfig) -> FrameSequence:
@@ -61,6 +62,7 @@ def build(
     n_frames = min(len(seq), cfg.max_frames) if cfg.max_frames else len(seq)
     if n_frames < 2:
         raise ConfigError(f"a run needs at least 2 frames: expected >= 2, found {n_frames}")
+    malloc = set_malloc_policy(cfg.memory.malloc)  # before the run allocates its state
     warm_kernels(cfg.slam.raster_backend, device, cfg.slam.gsplat_stats)  # before the memory probe: not the run's
     timer = PhaseTimer(device)
     probe = MemoryProbe(device, torch_live=cfg.memory.torch_live)  # before the SLAM state is allocated
@@ -68,7 +70,7 @@ def build(
     system = System(
         cfg.slam, seq.K, seq.height, seq.width, strategy, cfg.prune, device, timer=timer, keyframe_dir=store
     )
-    return RunSetup(seq, n_frames, strategy, system, timer, probe, lpips=built.lpips)
+    return RunSetup(seq, n_frames, strategy, system, timer, probe, lpips=built.lpips, malloc=malloc)
 
 
 _warm: set[str] = set()  # rasterizer backends whose kernels this process has loaded
