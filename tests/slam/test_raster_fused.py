@@ -274,10 +274,13 @@ def test_binning_orders_pairs_as_a_stable_depth_argsort():
         )
         tile_start, gid = raster_fused.bin_pairs(rect, z, tiles_x * tiles_y, tiles_x)
         order = torch.argsort(z, stable=True).to(torch.int32).numpy()
-        ref_start, ref_gid = binning.bin_pairs_kernel(order, rect.numpy(), tiles_x * tiles_y, tiles_x)
+        ref_start, ref_gid = binning.bin_pairs_kernel(order, rect.numpy(), tiles_x * tiles_y, tiles_x, 1)
         assert gid.numel() > n // 2
         assert np.array_equal(tile_start.numpy(), ref_start)
         assert np.array_equal(gid.numpy(), ref_gid)
+        for n_bands in (2, 3):  # bands of tile rows, one a thread: the same lists
+            band_start, band_gid = binning.bin_pairs_kernel(order, rect.numpy(), tiles_x * tiles_y, tiles_x, n_bands)
+            assert np.array_equal(band_start, ref_start) and np.array_equal(band_gid, ref_gid)
 
 
 def test_peak_memory_grows_with_gaussian_count():

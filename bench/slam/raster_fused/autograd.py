@@ -72,8 +72,9 @@ class _Project(torch.autograd.Function):
         g_cov = torch.zeros(n, 3) if g_cov is None else g_cov.float().contiguous()
         g_z = torch.zeros(n) if g_z is None else g_z.float().contiguous()
         g_means, g_ls, g_q = torch.empty(n, 3), torch.empty(n, 3), torch.empty(n, 4)
-        g_pose_rows = torch.empty(n, 12)  # [N, 12]
         gaussians = any(ctx.needs_input_grad[:3])
+        pose = ctx.needs_input_grad[3]  # mapping: the keyframe's pose is fixed, so no [N, 12] rows to fill and sum
+        g_pose_rows = torch.empty(n if pose else 0, 12)  # [N, 12]
         project_bwd(
             mw.numpy(),
             ls.numpy(),
@@ -87,16 +88,19 @@ class _Project(torch.autograd.Function):
             g_cov.numpy(),
             g_z.numpy(),
             gaussians,
+            pose,
             g_means.numpy(),
             g_ls.numpy(),
             g_q.numpy(),
             g_pose_rows.numpy(),
         )
-        g_pose = torch.zeros(12)
-        sum_rows(g_pose_rows.numpy(), g_pose.numpy())
-        g_w2c = torch.zeros(4, 4)
-        g_w2c[:3, :3] = g_pose[:9].reshape(3, 3)
-        g_w2c[:3, 3] = g_pose[9:]
+        g_w2c = None
+        if pose:
+            g_pose = torch.zeros(12)
+            sum_rows(g_pose_rows.numpy(), g_pose.numpy())
+            g_w2c = torch.zeros(4, 4)
+            g_w2c[:3, :3] = g_pose[:9].reshape(3, 3)
+            g_w2c[:3, 3] = g_pose[9:]
         if not gaussians:
             return None, None, None, g_w2c, None, None, None, None, None, None
         return g_means, g_ls, g_q, g_w2c, None, None, None, None, None, None

@@ -2,35 +2,46 @@
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import torch
-from numba import njit
+from numba import njit, prange
+
+from bench.slam.raster_fused.threads import set_threads
 
 
-@njit(cache=True)
-def bin_pairs_kernel(order, rect, n_tiles, tiles_x):  # pragma: no cover - compiled
+@njit(parallel=True, cache=True)
+def bin_pairs_kernel(order, rect, n_tiles, tiles_x, n_bands):  # pragma: no cover - compiled
     """Counting sort of (tile, Gaussian) pairs by tile; within a tile by depth (``order`` is depth-sorted).
 
     rect: [N, 4] int32 tile rectangle (x0, x1, y0, y1), empty when x0 == x1 or y0 == y1.
     Returns tile_start [n_tiles + 1] (int64) and gid [P] (int32).
+
+    ``n_bands`` bands of tile rows, one a thread: each walks the whole depth order for the pairs in its
+    band, so every tile's list is written by one thread in depth order, the same lists on any count.
     """
+    tiles_y = n_tiles // tiles_x
     counts = np.zeros(n_tiles + 1, np.int64)
-    for j in range(order.shape[0]):
-        g = order[j]
-        for ty in range(rect[g, 2], rect[g, 3]):
-            for tx in range(rect[g, 0], rect[g, 1]):
-                counts[ty * tiles_x + tx + 1] += 1
+    for band in prange(n_bands):
+        y_lo, y_hi = band * tiles_y // n_bands, (band + 1) * tiles_y // n_bands
+        for j in range(order.shape[0]):
+            g = order[j]
+            for ty in range(max(rect[g, 2], y_lo), min(rect[g, 3], y_hi)):
+                for tx in range(rect[g, 0], rect[g, 1]):
+                    counts[ty * tiles_x + tx + 1] += 1
     for t in range(n_tiles):
         counts[t + 1] += counts[t]
     gid = np.empty(counts[n_tiles], np.int32)
     fill = counts[:n_tiles].copy()
-    for j in range(order.shape[0]):
-        g = order[j]
-        for ty in range(rect[g, 2], rect[g, 3]):
-            for tx in range(rect[g, 0], rect[g, 1]):
-                t = ty * tiles_x + tx
-                gid[fill[t]] = g
-                fill[t] += 1
+    for band in prange(n_bands):
+        y_lo, y_hi = band * tiles_y // n_bands, (band + 1) * tiles_y // n_bands
+        for j in range(order.shape[0]):
+            g = order[j]
+            for ty in range(max(rect[g, 2], y_lo), min(rect[g, 3], y_hi)):
+                for tx in range(rect[g, 0], rect[g, 1]):
+                    t = ty * tiles_x + tx
+                    gid[fill[t]] = g
+                    fill[t] += 1
     return counts, gid
 
 
@@ -90,7 +101,9 @@ def bin_pairs(
         order = depth_order(z.numpy(), rect.numpy())  # [M] the Gaussians that touch a tile, by depth
     else:
         order = torch.argsort(z, stable=True).to(torch.int32).numpy()  # [N]
-    tile_start, gid = bin_pairs_kernel(order, rect.numpy(), n_tiles, tiles_x)
+    set_threads(int(order.shape[0]))
+    n_bands = max(1, min(numba.get_num_threads(), n_tiles // tiles_x))  # bands of tile rows, one a thread
+    tile_start, gid = bin_pairs_kernel(order, rect.numpy(), n_tiles, tiles_x, n_bands)
     return torch.from_numpy(tile_start), torch.from_numpy(gid)
 
 

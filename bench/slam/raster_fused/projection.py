@@ -7,8 +7,6 @@ from numba import njit, prange
 
 from bench.slam.raster_fused.constants import F32, TILE
 
-PROJECT_BLOCK = 256  # Gaussians per block of the projection's backward (one set of scratch matrices each)
-
 
 @njit(cache=True, inline="always")
 def _rotmat(qw, qx, qy, qz):  # pragma: no cover - compiled
@@ -148,6 +146,7 @@ def project_bwd(
     g_cov,
     g_z,
     gaussians,
+    pose,
     g_means,
     g_log_scales,
     g_quats,
@@ -155,175 +154,188 @@ def project_bwd(
 ):  # pragma: no cover - compiled
     """The chain rule of ``project_fwd`` per Gaussian; g_pose [N, 12] holds each Gaussian's share of
     d/d(Rc row-major, tc), reduced afterwards in a fixed order. Without ``gaussians`` (tracking: only
-    the pose is optimised) the gradients of means, log-scales and quaternions are left unwritten.
+    the pose is optimised) the gradients of means, log-scales and quaternions are left unwritten;
+    without ``pose`` (mapping: the keyframe's pose is fixed) g_pose is.
 
-    The small per-Gaussian matrices are allocated once per block of Gaussians: an allocation per
-    Gaussian cost more than its arithmetic."""
+    Every small matrix is a set of scalars (t_rk is row r, column k of T), so that they live in
+    registers; each entry is the expression, in the order, of the matrix products they stand for."""
     fx, fy = cam[0], cam[1]
     lim_x, lim_y = _jacobian_limits(fx, fy, width, height)
     n = means.shape[0]
-    for blk in prange((n + PROJECT_BLOCK - 1) // PROJECT_BLOCK):
-        t = np.empty((2, 3), np.float32)
-        rg = np.empty((3, 3), np.float32)
-        sc = np.empty(3, np.float32)
-        mm = np.empty((3, 3), np.float32)  # M = Rg diag(s)
-        sig = np.empty((3, 3), np.float32)  # Sigma = M M^T
-        ts = np.empty((2, 3), np.float32)  # T Sigma
-        gt = np.empty((2, 3), np.float32)
-        gsig = np.empty((3, 3), np.float32)
-        grg = np.empty((3, 3), np.float32)
-        for i in range(blk * PROJECT_BLOCK, min(n, (blk + 1) * PROJECT_BLOCK)):
-            if (
-                g_m2[i, 0] == 0
-                and g_m2[i, 1] == 0
-                and g_cov[i, 0] == 0
-                and g_cov[i, 1] == 0
-                and g_cov[i, 2] == 0
-                and g_z[i] == 0
-            ):
-                # nothing flows back (out of view: on a long drive most of the map): every product below is 0
+    for i in prange(n):
+        if (
+            g_m2[i, 0] == 0
+            and g_m2[i, 1] == 0
+            and g_cov[i, 0] == 0
+            and g_cov[i, 1] == 0
+            and g_cov[i, 2] == 0
+            and g_z[i] == 0
+        ):
+            # nothing flows back (out of view: on a long drive most of the map): every product below is 0
+            if pose:
                 for k in range(12):
                     g_pose[i, k] = F32(0.0)
-                if gaussians:
-                    for k in range(3):
-                        g_means[i, k] = F32(0.0)
-                        g_log_scales[i, k] = F32(0.0)
-                    for k in range(4):
-                        g_quats[i, k] = F32(0.0)
-                continue
-            mw0, mw1, mw2 = means[i, 0], means[i, 1], means[i, 2]
-            px, py, pz = _to_camera(means, i, rc, tc)
-            z_ok = abs(pz) >= F32(1e-6)
-            zs = pz if z_ok else F32(1e-6)
-            ux, uy = px / zs, py / zs
-            clamp_x = ux < -lim_x or ux > lim_x
-            clamp_y = uy < -lim_y or uy > lim_y
-            tx = min(max(ux, -lim_x), lim_x) * zs
-            ty = min(max(uy, -lim_y), lim_y) * zs
-            zs2 = zs * zs
-            j00, j02 = fx / zs, -fx * tx / zs2
-            j11, j12 = fy / zs, -fy * ty / zs2
-            for k in range(3):
-                t[0, k] = j00 * rc[0, k] + j02 * rc[2, k]
-                t[1, k] = j11 * rc[1, k] + j12 * rc[2, k]
-            qw, qx, qy, qz = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
-            qn = max(np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), F32(1e-12))
-            nw, nx, ny, nz = qw / qn, qx / qn, qy / qn, qz / qn
-            rg[0, 0], rg[0, 1], rg[0, 2], rg[1, 0], rg[1, 1], rg[1, 2], rg[2, 0], rg[2, 1], rg[2, 2] = _rotmat(
-                nw, nx, ny, nz
-            )
-            for k in range(3):
-                sc[k] = np.exp(log_scales[i, k])
-            for j in range(3):
-                for k in range(3):
-                    mm[j, k] = rg[j, k] * sc[k]
-            for j in range(3):
-                for k in range(3):
-                    sig[j, k] = mm[j, 0] * mm[k, 0] + mm[j, 1] * mm[k, 1] + mm[j, 2] * mm[k, 2]
-            # symmetric upstream gradient of the 2x2 screen covariance (b is read once, off the diagonal)
-            gs00, gs01, gs11 = g_cov[i, 0], F32(0.5) * g_cov[i, 1], g_cov[i, 2]
-            # dL/dT = 2 Gs T Sigma ; dL/dSigma = T^T Gs T ; dL/dM = 2 dL/dSigma M
-            for r in range(2):
-                for k in range(3):
-                    ts[r, k] = t[r, 0] * sig[0, k] + t[r, 1] * sig[1, k] + t[r, 2] * sig[2, k]
-            for k in range(3):
-                gt[0, k] = F32(2.0) * (gs00 * ts[0, k] + gs01 * ts[1, k])
-                gt[1, k] = F32(2.0) * (gs01 * ts[0, k] + gs11 * ts[1, k])
-            if gaussians:
-                for j in range(3):
-                    for k in range(3):
-                        gsig[j, k] = t[0, j] * (gs00 * t[0, k] + gs01 * t[1, k]) + t[1, j] * (
-                            gs01 * t[0, k] + gs11 * t[1, k]
-                        )
-                for k in range(3):
-                    gsk = F32(0.0)
-                    for j in range(3):
-                        gm = F32(2.0) * (gsig[j, 0] * mm[0, k] + gsig[j, 1] * mm[1, k] + gsig[j, 2] * mm[2, k])
-                        grg[j, k] = gm * sc[k]
-                        gsk += gm * rg[j, k]
-                    g_log_scales[i, k] = gsk * sc[k]
-                d = grg
-                gw = F32(2.0) * (
-                    -nz * d[0, 1] + ny * d[0, 2] + nz * d[1, 0] - nx * d[1, 2] - ny * d[2, 0] + nx * d[2, 1]
-                )
-                gx = F32(2.0) * (
-                    ny * d[0, 1]
-                    + nz * d[0, 2]
-                    + ny * d[1, 0]
-                    - F32(2.0) * nx * d[1, 1]
-                    - nw * d[1, 2]
-                    + nz * d[2, 0]
-                    + nw * d[2, 1]
-                    - F32(2.0) * nx * d[2, 2]
-                )
-                gy = F32(2.0) * (
-                    -F32(2.0) * ny * d[0, 0]
-                    + nx * d[0, 1]
-                    + nw * d[0, 2]
-                    + nx * d[1, 0]
-                    + nz * d[1, 2]
-                    - nw * d[2, 0]
-                    + nz * d[2, 1]
-                    - F32(2.0) * ny * d[2, 2]
-                )
-                gz = F32(2.0) * (
-                    -F32(2.0) * nz * d[0, 0]
-                    - nw * d[0, 1]
-                    + nx * d[0, 2]
-                    + nw * d[1, 0]
-                    - F32(2.0) * nz * d[1, 1]
-                    + ny * d[1, 2]
-                    + nx * d[2, 0]
-                    + ny * d[2, 1]
-                )
-                dot = nw * gw + nx * gx + ny * gy + nz * gz
-                g_quats[i, 0] = (gw - nw * dot) / qn
-                g_quats[i, 1] = (gx - nx * dot) / qn
-                g_quats[i, 2] = (gy - ny * dot) / qn
-                g_quats[i, 3] = (gz - nz * dot) / qn
-            # T = J Rc: dL/dJ = dL/dT Rc^T, dL/dRc += J^T dL/dT
-            gj00 = gt[0, 0] * rc[0, 0] + gt[0, 1] * rc[0, 1] + gt[0, 2] * rc[0, 2]
-            gj02 = gt[0, 0] * rc[2, 0] + gt[0, 1] * rc[2, 1] + gt[0, 2] * rc[2, 2]
-            gj11 = gt[1, 0] * rc[1, 0] + gt[1, 1] * rc[1, 1] + gt[1, 2] * rc[1, 2]
-            gj12 = gt[1, 0] * rc[2, 0] + gt[1, 1] * rc[2, 1] + gt[1, 2] * rc[2, 2]
-            for k in range(3):
-                g_pose[i, k] = j00 * gt[0, k]
-                g_pose[i, 3 + k] = j11 * gt[1, k]
-                g_pose[i, 6 + k] = j02 * gt[0, k] + j12 * gt[1, k]
-            # camera-space point: from J (through zs, tx, ty), the projected mean and z
-            gmx, gmy = g_m2[i, 0], g_m2[i, 1]
-            g_tx = gj02 * (-fx / zs2)
-            g_ty = gj12 * (-fy / zs2)
-            g_zs = (
-                gj00 * (-fx / zs2)
-                + gj02 * (F32(2.0) * fx * tx / (zs2 * zs))
-                + gj11 * (-fy / zs2)
-                + gj12 * (F32(2.0) * fy * ty / (zs2 * zs))
-                - (gmx * fx * px + gmy * fy * py) / zs2
-            )
-            gpx = gmx * fx / zs
-            gpy = gmy * fy / zs
-            if clamp_x:  # tx = +-lim_x zs
-                g_zs += g_tx * (lim_x if ux > F32(0.0) else -lim_x)
-            else:
-                gpx += g_tx
-            if clamp_y:
-                g_zs += g_ty * (lim_y if uy > F32(0.0) else -lim_y)
-            else:
-                gpy += g_ty
-            gpz = g_z[i] + (g_zs if z_ok else F32(0.0))
             if gaussians:
                 for k in range(3):
-                    g_means[i, k] = rc[0, k] * gpx + rc[1, k] * gpy + rc[2, k] * gpz
-            g_pose[i, 0] += gpx * mw0
-            g_pose[i, 1] += gpx * mw1
-            g_pose[i, 2] += gpx * mw2
-            g_pose[i, 3] += gpy * mw0
-            g_pose[i, 4] += gpy * mw1
-            g_pose[i, 5] += gpy * mw2
-            g_pose[i, 6] += gpz * mw0
-            g_pose[i, 7] += gpz * mw1
-            g_pose[i, 8] += gpz * mw2
+                    g_means[i, k] = F32(0.0)
+                    g_log_scales[i, k] = F32(0.0)
+                for k in range(4):
+                    g_quats[i, k] = F32(0.0)
+            continue
+        mw0, mw1, mw2 = means[i, 0], means[i, 1], means[i, 2]
+        px, py, pz = _to_camera(means, i, rc, tc)
+        z_ok = abs(pz) >= F32(1e-6)
+        zs = pz if z_ok else F32(1e-6)
+        ux, uy = px / zs, py / zs
+        clamp_x = ux < -lim_x or ux > lim_x
+        clamp_y = uy < -lim_y or uy > lim_y
+        tx = min(max(ux, -lim_x), lim_x) * zs
+        ty = min(max(uy, -lim_y), lim_y) * zs
+        zs2 = zs * zs
+        j00, j02 = fx / zs, -fx * tx / zs2
+        j11, j12 = fy / zs, -fy * ty / zs2
+        # T = J Rc [2, 3]
+        t00 = j00 * rc[0, 0] + j02 * rc[2, 0]
+        t01 = j00 * rc[0, 1] + j02 * rc[2, 1]
+        t02 = j00 * rc[0, 2] + j02 * rc[2, 2]
+        t10 = j11 * rc[1, 0] + j12 * rc[2, 0]
+        t11 = j11 * rc[1, 1] + j12 * rc[2, 1]
+        t12 = j11 * rc[1, 2] + j12 * rc[2, 2]
+        qw, qx, qy, qz = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
+        qn = max(np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), F32(1e-12))
+        nw, nx, ny, nz = qw / qn, qx / qn, qy / qn, qz / qn
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rotmat(nw, nx, ny, nz)
+        s0, s1, s2 = np.exp(log_scales[i, 0]), np.exp(log_scales[i, 1]), np.exp(log_scales[i, 2])
+        # M = Rg diag(s)
+        m00, m01, m02 = r00 * s0, r01 * s1, r02 * s2
+        m10, m11, m12 = r10 * s0, r11 * s1, r12 * s2
+        m20, m21, m22 = r20 * s0, r21 * s1, r22 * s2
+        # Sigma = M M^T (symmetric: sig_jk = sig_kj, each computed as its own product)
+        sg00 = m00 * m00 + m01 * m01 + m02 * m02
+        sg01 = m00 * m10 + m01 * m11 + m02 * m12
+        sg02 = m00 * m20 + m01 * m21 + m02 * m22
+        sg10 = m10 * m00 + m11 * m01 + m12 * m02
+        sg11 = m10 * m10 + m11 * m11 + m12 * m12
+        sg12 = m10 * m20 + m11 * m21 + m12 * m22
+        sg20 = m20 * m00 + m21 * m01 + m22 * m02
+        sg21 = m20 * m10 + m21 * m11 + m22 * m12
+        sg22 = m20 * m20 + m21 * m21 + m22 * m22
+        # symmetric upstream gradient of the 2x2 screen covariance (b is read once, off the diagonal)
+        gs00, gs01, gs11 = g_cov[i, 0], F32(0.5) * g_cov[i, 1], g_cov[i, 2]
+        # dL/dT = 2 Gs T Sigma ; dL/dSigma = T^T Gs T ; dL/dM = 2 dL/dSigma M
+        ts00 = t00 * sg00 + t01 * sg10 + t02 * sg20
+        ts01 = t00 * sg01 + t01 * sg11 + t02 * sg21
+        ts02 = t00 * sg02 + t01 * sg12 + t02 * sg22
+        ts10 = t10 * sg00 + t11 * sg10 + t12 * sg20
+        ts11 = t10 * sg01 + t11 * sg11 + t12 * sg21
+        ts12 = t10 * sg02 + t11 * sg12 + t12 * sg22
+        gt00 = F32(2.0) * (gs00 * ts00 + gs01 * ts10)
+        gt01 = F32(2.0) * (gs00 * ts01 + gs01 * ts11)
+        gt02 = F32(2.0) * (gs00 * ts02 + gs01 * ts12)
+        gt10 = F32(2.0) * (gs01 * ts00 + gs11 * ts10)
+        gt11 = F32(2.0) * (gs01 * ts01 + gs11 * ts11)
+        gt12 = F32(2.0) * (gs01 * ts02 + gs11 * ts12)
+        if gaussians:
+            # Gs T columns: c_k = (gs00 t0k + gs01 t1k, gs01 t0k + gs11 t1k); gsig_jk = t0j c_k0 + t1j c_k1
+            c00, c01 = gs00 * t00 + gs01 * t10, gs01 * t00 + gs11 * t10
+            c10, c11 = gs00 * t01 + gs01 * t11, gs01 * t01 + gs11 * t11
+            c20, c21 = gs00 * t02 + gs01 * t12, gs01 * t02 + gs11 * t12
+            gg00, gg01, gg02 = t00 * c00 + t10 * c01, t00 * c10 + t10 * c11, t00 * c20 + t10 * c21
+            gg10, gg11, gg12 = t01 * c00 + t11 * c01, t01 * c10 + t11 * c11, t01 * c20 + t11 * c21
+            gg20, gg21, gg22 = t02 * c00 + t12 * c01, t02 * c10 + t12 * c11, t02 * c20 + t12 * c21
+            # column k of dL/dM: gm_jk = 2 (gsig_j0 m0k + gsig_j1 m1k + gsig_j2 m2k)
+            gm00 = F32(2.0) * (gg00 * m00 + gg01 * m10 + gg02 * m20)
+            gm10 = F32(2.0) * (gg10 * m00 + gg11 * m10 + gg12 * m20)
+            gm20 = F32(2.0) * (gg20 * m00 + gg21 * m10 + gg22 * m20)
+            gm01 = F32(2.0) * (gg00 * m01 + gg01 * m11 + gg02 * m21)
+            gm11 = F32(2.0) * (gg10 * m01 + gg11 * m11 + gg12 * m21)
+            gm21 = F32(2.0) * (gg20 * m01 + gg21 * m11 + gg22 * m21)
+            gm02 = F32(2.0) * (gg00 * m02 + gg01 * m12 + gg02 * m22)
+            gm12 = F32(2.0) * (gg10 * m02 + gg11 * m12 + gg12 * m22)
+            gm22 = F32(2.0) * (gg20 * m02 + gg21 * m12 + gg22 * m22)
+            g_log_scales[i, 0] = (gm00 * r00 + gm10 * r10 + gm20 * r20) * s0
+            g_log_scales[i, 1] = (gm01 * r01 + gm11 * r11 + gm21 * r21) * s1
+            g_log_scales[i, 2] = (gm02 * r02 + gm12 * r12 + gm22 * r22) * s2
+            # dL/dRg = dL/dM diag(s)
+            d00, d01, d02 = gm00 * s0, gm01 * s1, gm02 * s2
+            d10, d11, d12 = gm10 * s0, gm11 * s1, gm12 * s2
+            d20, d21, d22 = gm20 * s0, gm21 * s1, gm22 * s2
+            gw = F32(2.0) * (-nz * d01 + ny * d02 + nz * d10 - nx * d12 - ny * d20 + nx * d21)
+            gx = F32(2.0) * (
+                ny * d01
+                + nz * d02
+                + ny * d10
+                - F32(2.0) * nx * d11
+                - nw * d12
+                + nz * d20
+                + nw * d21
+                - F32(2.0) * nx * d22
+            )
+            gy = F32(2.0) * (
+                -F32(2.0) * ny * d00
+                + nx * d01
+                + nw * d02
+                + nx * d10
+                + nz * d12
+                - nw * d20
+                + nz * d21
+                - F32(2.0) * ny * d22
+            )
+            gz = F32(2.0) * (
+                -F32(2.0) * nz * d00
+                - nw * d01
+                + nx * d02
+                + nw * d10
+                - F32(2.0) * nz * d11
+                + ny * d12
+                + nx * d20
+                + ny * d21
+            )
+            dot = nw * gw + nx * gx + ny * gy + nz * gz
+            g_quats[i, 0] = (gw - nw * dot) / qn
+            g_quats[i, 1] = (gx - nx * dot) / qn
+            g_quats[i, 2] = (gy - ny * dot) / qn
+            g_quats[i, 3] = (gz - nz * dot) / qn
+        # T = J Rc: dL/dJ = dL/dT Rc^T, dL/dRc += J^T dL/dT
+        gj00 = gt00 * rc[0, 0] + gt01 * rc[0, 1] + gt02 * rc[0, 2]
+        gj02 = gt00 * rc[2, 0] + gt01 * rc[2, 1] + gt02 * rc[2, 2]
+        gj11 = gt10 * rc[1, 0] + gt11 * rc[1, 1] + gt12 * rc[1, 2]
+        gj12 = gt10 * rc[2, 0] + gt11 * rc[2, 1] + gt12 * rc[2, 2]
+        # camera-space point: from J (through zs, tx, ty), the projected mean and z
+        gmx, gmy = g_m2[i, 0], g_m2[i, 1]
+        g_tx = gj02 * (-fx / zs2)
+        g_ty = gj12 * (-fy / zs2)
+        g_zs = (
+            gj00 * (-fx / zs2)
+            + gj02 * (F32(2.0) * fx * tx / (zs2 * zs))
+            + gj11 * (-fy / zs2)
+            + gj12 * (F32(2.0) * fy * ty / (zs2 * zs))
+            - (gmx * fx * px + gmy * fy * py) / zs2
+        )
+        gpx = gmx * fx / zs
+        gpy = gmy * fy / zs
+        if clamp_x:  # tx = +-lim_x zs
+            g_zs += g_tx * (lim_x if ux > F32(0.0) else -lim_x)
+        else:
+            gpx += g_tx
+        if clamp_y:
+            g_zs += g_ty * (lim_y if uy > F32(0.0) else -lim_y)
+        else:
+            gpy += g_ty
+        gpz = g_z[i] + (g_zs if z_ok else F32(0.0))
+        if gaussians:
+            for k in range(3):
+                g_means[i, k] = rc[0, k] * gpx + rc[1, k] * gpy + rc[2, k] * gpz
+        if pose:
+            g_pose[i, 0] = j00 * gt00 + gpx * mw0
+            g_pose[i, 1] = j00 * gt01 + gpx * mw1
+            g_pose[i, 2] = j00 * gt02 + gpx * mw2
+            g_pose[i, 3] = j11 * gt10 + gpy * mw0
+            g_pose[i, 4] = j11 * gt11 + gpy * mw1
+            g_pose[i, 5] = j11 * gt12 + gpy * mw2
+            g_pose[i, 6] = (j02 * gt00 + j12 * gt10) + gpz * mw0
+            g_pose[i, 7] = (j02 * gt01 + j12 * gt11) + gpz * mw1
+            g_pose[i, 8] = (j02 * gt02 + j12 * gt12) + gpz * mw2
             g_pose[i, 9] = gpx
             g_pose[i, 10] = gpy
             g_pose[i, 11] = gpz
