@@ -187,3 +187,28 @@ def test_a_job_whose_dir_name_is_too_long_for_the_file_system_gets_a_short_one(
     runs.clear()
     assert run_cli(args).code == 0
     assert runs == first  # the same dirs on a rerun
+
+
+def test_a_rerun_refused_for_every_job_says_the_dirs_keep_their_runs(
+    tmp_path: Path, runs: list[Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A sweep rerun whose every job is refused before any work (data briefly unreachable, say) leaves
+    the finished runs in their dirs, and its summary says so instead of listing them as failed runs."""
+    from bench.run import lifecycle as run_module
+
+    argv = ["--multirun", "+experiment=tiny", "seed=0,1", f"hydra.sweep.dir={tmp_path}"]
+    assert run_cli(argv).code == 0
+    first = list(runs)
+
+    def refuse(cfg, out_dir=None, built=None):
+        return run_module._refused(Path(out_dir).resolve(), "dataset root: expected a directory, found none", {})
+
+    monkeypatch.setattr(run_module, "run", refuse)
+    res = run_cli(argv)
+    assert res.code == 0, res.stderr
+    assert [json.loads((d / "metrics.json").read_text())["status"] for d in first] == ["ok", "ok"]
+    assert [r[:2] for r in table_rows(res.stdout)] == [
+        ["seed=0", "failed (keeps its ok run)"],
+        ["seed=1", "failed (keeps its ok run)"],
+    ]
+    assert "2 jobs: 2 failed (keeps its ok run)" in (tmp_path / "summary.md").read_text()

@@ -140,10 +140,18 @@ def _hydra_main(cfg: DictConfig) -> None:
 
 
 def _record(hc, status: str, out_dir: object, metrics: dict, wall_s: float | None) -> None:
-    """One finished sweep run into the sweep's job record, and the sweep progress line."""
+    """One finished sweep run into the sweep's job record, and the sweep progress line.
+
+    A job refused before any work leaves a previous run's record in its dir (``record_refusal``); its row
+    then says so (``failed (keeps its ok run)``), so that the summary of a rerun refused for a passing
+    reason does not read as if the runs in those dirs had failed."""
+    from bench.run.record import KEPT, read_record
     from bench.sweep.plan import job_name
     from bench.sweep.summary import record_job
 
+    stored = read_record(Path(str(out_dir))) if status == "failed" else None
+    if stored is not None and stored.get("status") in KEPT:
+        status = f"failed (keeps its {stored['status']} run)"
     job = {
         "num": hc.job.num,
         "name": job_name(list(hc.overrides.task)),
