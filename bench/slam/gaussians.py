@@ -80,7 +80,6 @@ class GaussianMap:
             eps=1e-15,
             fused=adam_fused or None,  # None: torch's per-op default (``slam.adam_fused``)
         )
-        self.adam_fused = adam_fused
 
     def __len__(self) -> int:
         return self.params["means"].shape[0]
