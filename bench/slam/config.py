@@ -142,9 +142,9 @@ class SlamConfig:
     # does (`if time_idx < 1` around its mapping loop; +experiment=released)
     mapping_schedule: str = setting("keyframes", "str", choices=MAPPING_SCHEDULES)
     mapping_fresh_optimizer: bool = True  # new Adam moments per keyframe, as SplaTAM does
-    # torch's fused Adam for the map (one pass over each parameter tensor; x3-4 faster on a CPU, where the
-    # per-op implementation makes about ten passes); False = that per-op implementation, as every run before it.
-    # The two compute the same update and differ at float rounding (one ulp in a few elements per step)
+    # torch's fused Adam for the map (one pass over each parameter tensor, where the per-op implementation makes
+    # about ten); False = that per-op implementation, as every run before it. The two compute the same update and
+    # differ at float rounding (speed and effect: reports/speed/2026-11-29-whole-run.md)
     adam_fused: bool = True
     # keyframes optimised together (current one included); None = all. A short window lets later
     # close-ups overwrite the views of the early drive (figures in reports/known_limits.md).

@@ -10,6 +10,12 @@ from numba import njit, prange
 from bench.slam.raster_fused.threads import set_threads
 
 
+@njit(cache=True, inline="always")
+def _band_rows(band, n_bands, tiles_y):  # pragma: no cover - compiled
+    """Tile rows [lo, hi) of band ``band`` of ``n_bands``."""
+    return band * tiles_y // n_bands, (band + 1) * tiles_y // n_bands
+
+
 @njit(parallel=True, cache=True)
 def bin_pairs_kernel(order, rect, n_tiles, tiles_x, n_bands):  # pragma: no cover - compiled
     """Counting sort of (tile, Gaussian) pairs by tile; within a tile by depth (``order`` is depth-sorted).
@@ -23,7 +29,7 @@ def bin_pairs_kernel(order, rect, n_tiles, tiles_x, n_bands):  # pragma: no cove
     tiles_y = n_tiles // tiles_x
     counts = np.zeros(n_tiles + 1, np.int64)
     for band in prange(n_bands):
-        y_lo, y_hi = band * tiles_y // n_bands, (band + 1) * tiles_y // n_bands
+        y_lo, y_hi = _band_rows(band, n_bands, tiles_y)
         for j in range(order.shape[0]):
             g = order[j]
             for ty in range(max(rect[g, 2], y_lo), min(rect[g, 3], y_hi)):
@@ -34,7 +40,7 @@ def bin_pairs_kernel(order, rect, n_tiles, tiles_x, n_bands):  # pragma: no cove
     gid = np.empty(counts[n_tiles], np.int32)
     fill = counts[:n_tiles].copy()
     for band in prange(n_bands):
-        y_lo, y_hi = band * tiles_y // n_bands, (band + 1) * tiles_y // n_bands
+        y_lo, y_hi = _band_rows(band, n_bands, tiles_y)
         for j in range(order.shape[0]):
             g = order[j]
             for ty in range(max(rect[g, 2], y_lo), min(rect[g, 3], y_hi)):

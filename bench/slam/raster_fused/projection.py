@@ -35,6 +35,32 @@ def _to_camera(means, i, rc, tc):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always")
+def _jacobian_rows(j00, j02, j11, j12, rc):  # pragma: no cover - compiled
+    """T = J Rc [2, 3] (row-major), J the projection's Jacobian [[j00, 0, j02], [0, j11, j12]]."""
+    return (
+        j00 * rc[0, 0] + j02 * rc[2, 0],
+        j00 * rc[0, 1] + j02 * rc[2, 1],
+        j00 * rc[0, 2] + j02 * rc[2, 2],
+        j11 * rc[1, 0] + j12 * rc[2, 0],
+        j11 * rc[1, 1] + j12 * rc[2, 1],
+        j11 * rc[1, 2] + j12 * rc[2, 2],
+    )
+
+
+@njit(cache=True, inline="always")
+def _unit_quat(quats, i):  # pragma: no cover - compiled
+    """Gaussian i's quaternion normalised (w, x, y, z) and its norm (at least 1e-12)."""
+    qw, qx, qy, qz = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
+    qn = max(np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), F32(1e-12))
+    return qw / qn, qx / qn, qy / qn, qz / qn, qn
+
+
+@njit(cache=True, inline="always")
+def _scales(log_scales, i):  # pragma: no cover - compiled
+    return np.exp(log_scales[i, 0]), np.exp(log_scales[i, 1]), np.exp(log_scales[i, 2])
+
+
+@njit(cache=True, inline="always")
 def _jacobian_limits(fx, fy, width, height):  # pragma: no cover - compiled
     """3DGS clamps the Jacobian's lever arm at 1.3x the half field of view (as ``raster.project``)."""
     return F32(1.3) * (F32(0.5) * F32(width) / fx), F32(1.3) * (F32(0.5) * F32(height) / fy)
@@ -90,17 +116,10 @@ def project_fwd(
         ty = min(max(py / zs, -lim_y), lim_y) * zs
         j00, j02 = fx / zs, -fx * tx / (zs * zs)
         j11, j12 = fy / zs, -fy * ty / (zs * zs)
-        # T = J Rc  [2, 3]
-        t00 = j00 * rc[0, 0] + j02 * rc[2, 0]
-        t01 = j00 * rc[0, 1] + j02 * rc[2, 1]
-        t02 = j00 * rc[0, 2] + j02 * rc[2, 2]
-        t10 = j11 * rc[1, 0] + j12 * rc[2, 0]
-        t11 = j11 * rc[1, 1] + j12 * rc[2, 1]
-        t12 = j11 * rc[1, 2] + j12 * rc[2, 2]
-        qw, qx, qy, qz = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
-        qn = max(np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), F32(1e-12))
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rotmat(qw / qn, qx / qn, qy / qn, qz / qn)
-        s0, s1, s2 = np.exp(log_scales[i, 0]), np.exp(log_scales[i, 1]), np.exp(log_scales[i, 2])
+        t00, t01, t02, t10, t11, t12 = _jacobian_rows(j00, j02, j11, j12, rc)  # T = J Rc [2, 3]
+        nw, nx, ny, nz, _ = _unit_quat(quats, i)
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rotmat(nw, nx, ny, nz)
+        s0, s1, s2 = _scales(log_scales, i)
         # U = T M with M = R diag(s): cov2d = U U^T
         u00 = (t00 * r00 + t01 * r10 + t02 * r20) * s0
         u01 = (t00 * r01 + t01 * r11 + t02 * r21) * s1
@@ -194,18 +213,10 @@ def project_bwd(
         zs2 = zs * zs
         j00, j02 = fx / zs, -fx * tx / zs2
         j11, j12 = fy / zs, -fy * ty / zs2
-        # T = J Rc [2, 3]
-        t00 = j00 * rc[0, 0] + j02 * rc[2, 0]
-        t01 = j00 * rc[0, 1] + j02 * rc[2, 1]
-        t02 = j00 * rc[0, 2] + j02 * rc[2, 2]
-        t10 = j11 * rc[1, 0] + j12 * rc[2, 0]
-        t11 = j11 * rc[1, 1] + j12 * rc[2, 1]
-        t12 = j11 * rc[1, 2] + j12 * rc[2, 2]
-        qw, qx, qy, qz = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
-        qn = max(np.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), F32(1e-12))
-        nw, nx, ny, nz = qw / qn, qx / qn, qy / qn, qz / qn
+        t00, t01, t02, t10, t11, t12 = _jacobian_rows(j00, j02, j11, j12, rc)  # T = J Rc [2, 3]
+        nw, nx, ny, nz, qn = _unit_quat(quats, i)
         r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rotmat(nw, nx, ny, nz)
-        s0, s1, s2 = np.exp(log_scales[i, 0]), np.exp(log_scales[i, 1]), np.exp(log_scales[i, 2])
+        s0, s1, s2 = _scales(log_scales, i)
         # M = Rg diag(s)
         m00, m01, m02 = r00 * s0, r01 * s1, r02 * s2
         m10, m11, m12 = r10 * s0, r11 * s1, r12 * s2
