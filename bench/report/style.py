@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import re
 import textwrap
 from collections import Counter
 from collections.abc import Sequence
@@ -63,6 +64,43 @@ def strategy_colour(strategy: str, known: Sequence[str] = ()) -> str:
     return EXTRA_COLOURS[extra.index(strategy) % len(EXTRA_COLOURS)]
 
 
+Schedule = tuple[float | None, str]  # how a variant pruned: (keep ratio, ``Variant.pruning``)
+
+
+def schedule(variant: Variant) -> Schedule:
+    return variant.keep_ratio, variant.pruning
+
+
+def _schedule_order(s: Schedule) -> tuple:
+    return s[0] is None, s[0] or 0.0, s[1]
+
+
+def _schedule_parts(s: Schedule) -> dict[str, str]:
+    """A schedule's parts by key: its budget (``keep 0.4`` or ``N_tar 166223/Mpx``; ``absolute target`` for a run
+    recorded before the pruning column) under "budget", ``floor 1/px`` under "floor", ``rank=random`` under "rank"."""
+    parts = {"budget": f"keep {s[0]:g}" if s[0] is not None else "absolute target"}
+    for part in s[1].split(", ") if s[1] else ():
+        key = re.split(r"[= ]", part, maxsplit=1)[0]
+        parts["budget" if key == "N_tar" else key] = part
+    return parts
+
+
+def schedule_differences(schedules: set[Schedule]) -> dict[Schedule, str]:
+    """Per schedule, the parts that tell it from the others (``keep 0.4``; ``N_tar 166223/Mpx, floor 1/px``;
+    ``no floor`` where an absolute target lacks the floor others set; ``default rank`` where a strategy parameter
+    others set is at its default): what a legend names beside the method."""
+    parsed = {s: _schedule_parts(s) for s in schedules}
+    keys = dict.fromkeys(k for parts in parsed.values() for k in parts)
+    differ = [k for k in keys if len({parts.get(k) for parts in parsed.values()}) > 1]
+
+    def missing(key: str, parts: dict[str, str]) -> str:  # a keep ratio has no floor: nothing to name
+        if key == "floor":
+            return "" if parts["budget"].startswith("keep") else "no floor"
+        return f"default {key}"
+
+    return {s: ", ".join(p for k in differ if (p := parts.get(k) or missing(k, parts))) for s, parts in parsed.items()}
+
+
 @dataclass(frozen=True)
 class Panel:
     """One small multiple: a title and at most ``MAX_SERIES`` variants."""
@@ -70,7 +108,7 @@ class Panel:
     title: str
     variants: tuple[Variant, ...]
     preset: str
-    usual_ratio: float | None = None  # the keep ratio the preset's main panel shows: solid in a ratio panel too
+    usual: Schedule | None = None  # the schedule the preset's main panel shows: solid in a schedule panel too
     by_policy: bool = False  # a panel of memory policies: each strategy's policies take the styles in turn
 
 
@@ -95,28 +133,32 @@ def panel_groups(found: Sequence[Variant]) -> list[Panel]:
             continue
         mine = [v for v in everything if not v.memory_policy]  # today's system; memory policies get their panel
         per_strategy = Counter(v.strategy for v in mine)
-        ratios = Counter(v.keep_ratio for v in mine if v.keep_ratio is not None)
-        usual = ratios.most_common(1)[0][0] if ratios else None
-        main = [v for v in mine if per_strategy[v.strategy] == 1 or v.keep_ratio in (usual, None)]
+        schedules = Counter(schedule(v) for v in mine if v.strategy != BASELINE)
+        # the most common schedule; a keep ratio before an absolute target on a tie (the studies' usual one)
+        usual = max(schedules, key=lambda s: (schedules[s], s[0] is not None)) if schedules else None
+        at_usual = {v.strategy for v in mine if schedule(v) == usual}
+        main = [v for v in mine if per_strategy[v.strategy] == 1 or v.strategy not in at_usual or schedule(v) == usual]
         read = f"{{{shown[inp]}}}" if len(inputs) > 1 else ""
         title = " ".join(t for t in (_preset_title(preset, several), read) if t)
         panels += _families(title, main, preset, usual)
         for strategy in [s for s, n in per_strategy.items() if n > 1]:
             swept = [v for v in mine if v.strategy == strategy]
             base = [v for v in mine if v.strategy == BASELINE and strategy != BASELINE]
-            sweep_title = (f"{title}:\n" if title else "") + f"{method_name(strategy)} by keep ratio"
+            by = "keep ratio" if not any(v.pruning for v in swept) else "pruning schedule"
+            sweep_title = (f"{title}:\n" if title else "") + f"{method_name(strategy)} by {by}"
             panels += _cut(sweep_title, base + swept, preset, usual)
         policies = [v for v in everything if v.memory_policy]
-        if policies:  # each strategy's policies beside its run under today's policy, strategy by strategy
+        if policies:  # each strategy's policies beside its run under today's policy at the same schedule
             strategies = list(dict.fromkeys(v.strategy for v in policies))
-            ladder = [v for s in strategies for v in everything if v.strategy == s and v.keep_ratio in (usual, None)]
+            ran = {(v.strategy, schedule(v)) for v in policies}
+            ladder = [v for s in strategies for v in everything if v.strategy == s and (s, schedule(v)) in ran]
             policy_title = (f"{title}:\n" if title else "") + "memory policies"
             for panel in _cut(policy_title, ladder, preset, usual, size=2 * len(RATIO_STYLES)):
                 panels.append(Panel(panel.title, panel.variants, preset, usual, by_policy=True))
     return panels
 
 
-def _families(title: str, variants: list[Variant], preset: str, usual: float | None) -> list[Panel]:
+def _families(title: str, variants: list[Variant], preset: str, usual: Schedule | None) -> list[Panel]:
     """The paper's methods and the literature criteria (``names.LITERATURE``) in panels of their own, each
     with the baseline, when both ran; else one group."""
     lit = [v for v in variants if v.strategy in LITERATURE]
@@ -128,7 +170,9 @@ def _families(title: str, variants: list[Variant], preset: str, usual: float | N
     return _cut(f"{head}paper's methods", paper, preset, usual) + _cut(f"{head}literature", base + lit, preset, usual)
 
 
-def _cut(title: str, variants: list[Variant], preset: str, usual: float | None, size: int = MAX_SERIES) -> list[Panel]:
+def _cut(
+    title: str, variants: list[Variant], preset: str, usual: Schedule | None, size: int = MAX_SERIES
+) -> list[Panel]:
     chunks = [variants[i : i + size] for i in range(0, len(variants), size)]
     if len(chunks) == 1:
         return [Panel(title, tuple(chunks[0]), preset, usual)]
@@ -136,30 +180,33 @@ def _cut(title: str, variants: list[Variant], preset: str, usual: float | None, 
 
 
 def ratio_style(variant: Variant, panel: Panel) -> tuple[str | tuple, str]:
-    """(line style, marker): solid and round unless the panel holds several ratios of the strategy; then
-    the preset's usual ratio keeps solid and round, so one run looks the same in its preset's panel and
-    in the ratio panel, and the others take the next styles in ratio order."""
+    """(line style, marker): solid and round unless the panel holds several schedules of the strategy (keep
+    ratios, absolute targets, parameter sets); then the preset's usual schedule keeps solid and round, so one run
+    looks the same in its preset's panel and in the schedule panel, and the others take the next styles in order
+    (ratios ascending, then absolute targets)."""
     if panel.by_policy:  # today's policy solid and round, then the strategy's policies in the panel's order
         mine = [v for v in panel.variants if v.strategy == variant.strategy]
         return RATIO_STYLES[mine.index(variant) % len(RATIO_STYLES)] if variant in mine else RATIO_STYLES[0]
-    same = sorted(v.keep_ratio for v in panel.variants if v.strategy == variant.strategy and v.keep_ratio is not None)
-    if variant.keep_ratio is None:  # an absolute target: the style after the strategy's ratios, if it has any
-        return RATIO_STYLES[len(same) % len(RATIO_STYLES)]
-    if len(same) < 2:
+    same = sorted({schedule(v) for v in panel.variants if v.strategy == variant.strategy}, key=_schedule_order)
+    if len(same) < 2 or schedule(variant) not in same:
         return RATIO_STYLES[0]
-    if panel.usual_ratio in same:
-        same.remove(panel.usual_ratio)
-        same.insert(0, panel.usual_ratio)
-    return RATIO_STYLES[same.index(variant.keep_ratio) % len(RATIO_STYLES)]
+    if panel.usual in same:
+        same.remove(panel.usual)
+        same.insert(0, panel.usual)
+    return RATIO_STYLES[same.index(schedule(variant)) % len(RATIO_STYLES)]
 
 
 def series_label(variant: Variant, panel: Panel | None = None) -> str:
-    """A legend entry: the method's name, and its keep ratio where the panel shows several."""
+    """A legend entry: the method's name, and what tells its schedule (``schedule_differences``) or memory policy
+    from the strategy's other variants where the panel shows several."""
     label = method_name(variant.strategy)
-    if panel is not None and panel.by_policy:
+    if panel is None:
+        return label
+    schedules = {schedule(v) for v in panel.variants if v.strategy == variant.strategy}
+    if len(schedules) > 1:
+        label += ", " + schedule_differences(schedules)[schedule(variant)]
+    if panel.by_policy:
         return label + (f" + {short_policy(variant.memory_policy)}" if variant.memory_policy else ", today's policy")
-    if panel is not None and sum(v.strategy == variant.strategy for v in panel.variants) > 1:
-        label += ", absolute target" if variant.keep_ratio is None else f", keep {variant.keep_ratio:g}"
     return label
 
 

@@ -201,3 +201,34 @@ def test_memory_policies_get_a_panel_of_their_own_with_todays_runs_beside_them()
     assert styles == [RATIO_STYLES[0], RATIO_STYLES[1], RATIO_STYLES[0], RATIO_STYLES[1], RATIO_STYLES[2]]
     assert series_label(policy.variants[4], policy).endswith("+ kf.residency=disk, cap=30000")
     assert series_label(policy.variants[0], policy).endswith("today's policy")
+
+
+def test_absolute_targets_that_differ_in_floor_or_parameters_are_labelled_and_drawn_apart() -> None:
+    """The regime study runs pocket at one absolute N_tar with and without a floor, with rank=random, and at a keep
+    ratio, beside other criteria at the floored target: the main panel shows each strategy once (at the shared
+    schedule), the schedule panel every pocket variant, each with its own style and a legend entry of its own."""
+    from bench.report.style import series_label
+
+    target, floor = "N_tar 166223/Mpx", "N_tar 166223/Mpx, floor 1/px"
+    found = [Variant("none", None, "none", "default")]
+    found += [Variant(s, None, s, "default", pruning=floor) for s in ("pocket", "opacity", "random")]
+    found += [
+        Variant("pocket", None, "p-nofloor", "default", pruning=target),
+        Variant("pocket", None, "p-random", "default", pruning=floor + ", rank=random"),
+        Variant("pocket", 0.4, "p-keep", "default"),
+        Variant("pocket", None, "p-disk", "default", "keyframes.residency=disk", pruning=floor),
+    ]
+    main, sweep, policy = panel_groups(found)
+    assert sorted(v.label for v in main.variants) == ["none", "opacity", "pocket", "random"]
+    assert "by pruning schedule" in sweep.title
+    pockets = [v for v in sweep.variants if v.strategy == "pocket"]
+    assert len(pockets) == 4
+    labels = {v.label: series_label(v, sweep) for v in pockets}
+    assert len(set(labels.values())) == 4
+    assert labels["p-nofloor"].endswith("N_tar 166223/Mpx, no floor, default rank")
+    assert labels["p-random"].endswith("floor 1/px, rank=random")
+    assert labels["p-keep"].endswith("keep 0.4, default rank")
+    assert len({ratio_style(v, sweep) for v in pockets}) == 4
+    usual = next(v for v in pockets if v.label == "pocket")
+    assert ratio_style(usual, sweep) == ratio_style(usual, main) == RATIO_STYLES[0]
+    assert [v.label for v in policy.variants] == ["pocket", "p-disk"]  # today's run at the same schedule only

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -97,7 +98,8 @@ def plot_density(runs: pd.DataFrame, dataset: str, seq: str, out: Path, warn: Wa
             ax.set_xlim(-0.5, counts.shape[1] - 0.5)
             ax.set_ylim(counts.shape[0] - 0.5, -0.5)
             image_axes(ax, strategy_colour(variant.strategy, known))
-            ax.set_title(f"{series_label(variant, panel)}\n{int(counts.sum()):,} centres in view", fontsize=8)
+            name = textwrap.fill(series_label(variant, panel), int(panel_w * 13))  # 8 pt: about 13 characters an inch
+            ax.set_title(f"{name}\n{int(counts.sum()):,} centres in view", fontsize=8)
         if panel.title and first:
             axes[r, 0].set_ylabel(panel.title, fontsize=8)
         for ax in axes[r, len(cells) :]:
