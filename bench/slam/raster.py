@@ -365,40 +365,30 @@ def _render_fused(
     n_tiles = ff.tiles_x * ff.tiles_y
     n = colors.shape[0]
     vis = ff.vis
-    z_v = ff.z.index_select(0, vis)  # [V]
+    z_v = ff.z.detach().index_select(0, vis)  # [V], for the depth order
     tile_start, gid = raster_fused.bin_pairs(ff.rect.index_select(0, vis), z_v, n_tiles, ff.tiles_x)
-    coverage = hit_count = max_weight = None
-    if stats:  # [N]: zero for the Gaussians out of view
-        coverage, hit_count, max_weight = torch.zeros(n), torch.zeros(n, dtype=torch.int64), torch.zeros(n)
     if gid.numel():
-        cov_vis = ff.cov.index_select(0, vis)  # [V, 3]
-        inv = conic(*cov_vis.unbind(-1))  # [V, 3]
-        op_v = opacities.index_select(0, vis)  # [V]
-        if antialiased:  # on the Gaussians in view only, as everything after the projection here
-            op_v = op_v * antialias_compensation(cov_vis).to(op_v.dtype)
-        feat = torch.cat([colors.index_select(0, vis), _paint_depth(z_v, depth_far_m)[:, None]], 1).float()  # [V, 4]
-        acc, t_final, cov_v, hits_v, maxw_v = raster_fused.composite(
-            ff.means2d.index_select(0, vis).float(),
-            inv.float(),
-            op_v.float(),
-            feat,
-            gid,
-            tile_start,
-            width,
-            height,
-            ff.tiles_x,
-            stats,
-        )
-        if stats:
-            assert coverage is not None and hit_count is not None and max_weight is not None  # set when stats
-            coverage[vis], hit_count[vis], max_weight[vis] = cov_v, hits_v, maxw_v
-        if extra:
-            from bench.slam.raster_fused.criteria_stats import extra_stats
+        # the Gaussians in view gathered, their conic and antialiasing factor, and the gradients scattered back
+        # to [N], in the compositing's own kernels; coverage, hit_count, max_weight [N] (empty without stats)
+        acc, t_final, coverage, hit_count, max_weight = raster_fused.composite(
+            ff.means2d, ff.cov, opacities, colors, ff.z, vis, gid, tile_start, width, height, ff.tiles_x, stats,
+            antialiased, depth_far_m,
+        )  # fmt: skip
+    else:  # nothing in view: constant images that carry no gradient, as the torch backend returns
+        acc, t_final = torch.zeros(width * height, 4), torch.ones(width * height)
+        coverage, hit_count, max_weight = torch.zeros(n), torch.zeros(n, dtype=torch.int64), torch.zeros(n)
+    ex = torch.zeros(n, 5)
+    if extra and gid.numel():
+        from bench.slam.raster_fused.criteria_stats import extra_stats
 
-            ex = torch.zeros(n, 5)
+        with torch.no_grad():  # forward-only statistics of the Gaussians in view, as the compositing sees them
+            cov_vis = ff.cov.index_select(0, vis)  # [V, 3]
+            op_v = opacities.index_select(0, vis)  # [V]
+            if antialiased:
+                op_v = op_v * antialias_compensation(cov_vis).to(op_v.dtype)
             ex[vis] = extra_stats(
                 ff.means2d.index_select(0, vis),
-                inv,
+                conic(*cov_vis.unbind(-1)),
                 op_v,
                 colors.index_select(0, vis),
                 gid,
@@ -409,11 +399,7 @@ def _render_fused(
                 float(bg.sum()),
                 "alpha_grad_sq" in extra,
             )
-    else:  # nothing in view: constant images that carry no gradient, as the torch backend returns
-        acc, t_final = torch.zeros(width * height, 4), torch.ones(width * height)
     dtype = colors.dtype
-    if extra and not gid.numel():
-        ex = torch.zeros(n, 5)
     ext = {}
     if extra:
         cols = {
@@ -438,9 +424,9 @@ def _render_fused(
         radius_px=ff.radius_px,
         tile_id=ff.tile_id,
         tiles_xy=(ff.tiles_x, ff.tiles_y),
-        coverage=coverage.to(dtype) if coverage is not None else None,  # not None exactly when stats
+        coverage=coverage.to(dtype) if stats else None,
         hit_count=hit_count if stats else None,
-        max_weight=max_weight.to(dtype) if max_weight is not None else None,
+        max_weight=max_weight.to(dtype) if stats else None,
         **ext,
     )
 

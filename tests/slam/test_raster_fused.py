@@ -62,13 +62,21 @@ def grads(params, K, W, H, backend, target, w2c_base, **kw):
     return [t.grad for t in leaves] + [xi.grad]
 
 
-@pytest.mark.parametrize("antialiased", [False, True])
+@pytest.mark.parametrize("antialiased,depth_far_m", [(False, None), (True, None), (True, 3.0)])
 @pytest.mark.parametrize("seed,W,H", [(0, 40, 32), (2, 33, 17)])
-def test_gradients_match_torch_including_pose(seed, W, H, antialiased):
+def test_gradients_match_torch_including_pose(seed, W, H, antialiased, depth_far_m):
+    """Also with a far limit inside the scene (some Gaussians paint no depth): the fused path gathers the
+    Gaussians in view and scatters their gradients back through the conic, the antialiasing factor and the
+    painted depth in its own kernels."""
     *params, K = scene(seed=seed)
+    if depth_far_m is not None:
+        w2c = se3_exp(POSE)
+        z = params[0] @ w2c[2, :3] + w2c[2, 3]  # [N] camera depths
+        assert (z < depth_far_m).any() and (z >= depth_far_m).any()
     target = torch.rand(H, W, 3, generator=torch.Generator().manual_seed(9))
-    ref = grads(params, K, W, H, "torch", target, se3_exp(POSE), antialiased=antialiased)
-    got = grads(params, K, W, H, "fused", target, se3_exp(POSE), antialiased=antialiased)
+    kw = {"antialiased": antialiased, "depth_far_m": depth_far_m}
+    ref = grads(params, K, W, H, "torch", target, se3_exp(POSE), **kw)
+    got = grads(params, K, W, H, "fused", target, se3_exp(POSE), **kw)
     for name, g, r in zip(["means", "log_scales", "quats", "opacity", "colors", "pose"], got, ref, strict=True):
         assert r.abs().max() > 0, name
         torch.testing.assert_close(g, r, atol=2e-6, rtol=2e-3, msg=name)

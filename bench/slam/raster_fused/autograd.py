@@ -19,6 +19,7 @@ from bench.slam.raster_fused.constants import N_FEAT
 from bench.slam.raster_fused.kernel_cache import load_from_cache
 from bench.slam.raster_fused.projection import project_bwd, project_fwd, sum_rows
 from bench.slam.raster_fused.threads import set_threads
+from bench.slam.raster_fused.view import gather_view, scatter_view
 
 
 class _Project(torch.autograd.Function):
@@ -126,15 +127,35 @@ def project(
 
 
 class _Composite(torch.autograd.Function):
-    """Differentiable compositing of projected Gaussians; per-pixel outputs acc [H*W, 4] and T [H*W]."""
+    """Differentiable compositing of the Gaussians in view (``vis`` [V], indices into the map's N): per-pixel
+    outputs acc [H*W, 4] and T [H*W]. It takes the map's [N] tensors, and gathers those in view, their conic
+    and antialiasing factor, and scatters their gradients back, in compiled kernels (``view``)."""
 
     @staticmethod
-    def forward(ctx, means2d, conic, opac, feat, gid, tile_start, width, height, tiles_x, stats):
+    def forward(
+        ctx, means2d, cov, opac, colors, z, vis, gid, tile_start, width, height, tiles_x, stats, antialiased, far
+    ):
         set_threads(int(gid.shape[0]))
-        m2 = means2d.detach().contiguous()
-        co = conic.detach().contiguous()
-        op = opac.detach().contiguous()
-        ft = feat.detach().contiguous()
+        m2, cv, op, col, zz = (t.detach().float().contiguous() for t in (means2d, cov, opac, colors, z))
+        n, v = m2.shape[0], vis.shape[0]
+        m2_v, inv_v, op_v = torch.empty(v, 2), torch.empty(v, 3), torch.empty(v)  # [V, 2], [V, 3], [V]
+        feat_v, fac_v = torch.empty(v, N_FEAT), torch.empty(v)  # [V, 4], [V]
+        far32 = np.float32(far)
+        gather_view(
+            vis.numpy(),
+            m2.numpy(),
+            cv.numpy(),
+            op.numpy(),
+            col.numpy(),
+            zz.numpy(),
+            antialiased,
+            far32,
+            m2_v.numpy(),
+            inv_v.numpy(),
+            op_v.numpy(),
+            feat_v.numpy(),
+            fac_v.numpy(),
+        )
         hw = width * height
         acc = torch.empty(hw, N_FEAT, dtype=torch.float32)  # [H*W, 4]
         t_final = torch.empty(hw, dtype=torch.float32)  # [H*W]
@@ -143,8 +164,9 @@ class _Composite(torch.autograd.Function):
         pair_cov = torch.empty(n_pairs, dtype=torch.float32)
         pair_hits = torch.empty(n_pairs, dtype=torch.int32)
         pair_maxw = torch.empty(n_pairs, dtype=torch.float32)
-        gp = torch.empty(m2.shape[0], G_SIZE, dtype=torch.float32)  # [N, 16]
-        pack(m2.numpy(), co.numpy(), op.numpy(), ft.numpy(), gp.numpy())
+        gp = torch.empty(v, G_SIZE, dtype=torch.float32)  # [V, 16]
+        pack(m2_v.numpy(), inv_v.numpy(), op_v.numpy(), feat_v.numpy(), gp.numpy())
+        del m2_v, inv_v, op_v, feat_v
         order, bounds = tile_schedule(tile_start.numpy(), numba.get_num_threads())
         composite_fwd(
             gid.numpy(),
@@ -163,31 +185,34 @@ class _Composite(torch.autograd.Function):
             pair_hits.numpy(),
             pair_maxw.numpy(),
         )
-        n = m2.shape[0]
-        coverage = torch.zeros(n if stats else 0, dtype=torch.float32)
+        coverage = torch.zeros(n if stats else 0, dtype=torch.float32)  # [N]: zero out of view
         hit_count = torch.zeros(n if stats else 0, dtype=torch.int64)
         max_weight = torch.zeros(n if stats else 0, dtype=torch.float32)
         if stats:
+            cov_v = torch.zeros(v, dtype=torch.float32)
+            hits_v = torch.zeros(v, dtype=torch.int64)
+            maxw_v = torch.zeros(v, dtype=torch.float32)
             reduce_stats(
                 gid.numpy(),
                 pair_cov.numpy(),
                 pair_hits.numpy(),
                 pair_maxw.numpy(),
-                coverage.numpy(),
-                hit_count.numpy(),
-                max_weight.numpy(),
+                cov_v.numpy(),
+                hits_v.numpy(),
+                maxw_v.numpy(),
             )
+            coverage[vis], hit_count[vis], max_weight[vis] = cov_v, hits_v, maxw_v
         del pair_cov, pair_hits, pair_maxw
-        ctx.save_for_backward(gp, gid, tile_start, t_final, last)
-        ctx.dims = (width, height, tiles_x)
+        ctx.save_for_backward(gp, gid, tile_start, t_final, last, vis, cv, op, zz, fac_v)
+        ctx.dims = (width, height, tiles_x, antialiased, far32)
         ctx.mark_non_differentiable(coverage, hit_count, max_weight)
         return acc, t_final, coverage, hit_count, max_weight
 
     @staticmethod
     def backward(ctx, g_acc, g_t, *_):
-        gp, gid, tile_start, t_final, last = ctx.saved_tensors
+        gp, gid, tile_start, t_final, last, vis, cv, op, zz, fac_v = ctx.saved_tensors
         set_threads(int(gid.shape[0]))
-        width, height, tiles_x = ctx.dims
+        width, height, tiles_x, antialiased, far32 = ctx.dims
         hw = width * height
         g_acc = torch.zeros(hw, N_FEAT) if g_acc is None else g_acc.contiguous().to(torch.float32)
         g_t = torch.zeros(hw) if g_t is None else g_t.contiguous().to(torch.float32)
@@ -208,24 +233,60 @@ class _Composite(torch.autograd.Function):
             g_t.numpy(),
             pair_grad.numpy(),
         )
-        grad = torch.zeros(gp.shape[0], 10, dtype=torch.float32)  # [N, 10]
-        reduce_sum(gid.numpy(), pair_grad.numpy(), grad.numpy())
+        grad_v = torch.zeros(gp.shape[0], 10, dtype=torch.float32)  # [V, 10]
+        reduce_sum(gid.numpy(), pair_grad.numpy(), grad_v.numpy())
         del pair_grad
-        return grad[:, 0:2], grad[:, 2:5], grad[:, 5], grad[:, 6:10], None, None, None, None, None, None
+        n = cv.shape[0]
+        want_op, want_col = ctx.needs_input_grad[2], ctx.needs_input_grad[3]
+        g_m2, g_cov, g_z = torch.zeros(n, 2), torch.zeros(n, 3), torch.zeros(n)  # [N, 2], [N, 3], [N]
+        g_op, g_col = torch.zeros(n if want_op else 0), torch.zeros(n if want_col else 0, 3)  # [N], [N, 3]
+        scatter_view(
+            vis.numpy(),
+            grad_v.numpy(),
+            cv.numpy(),
+            op.numpy(),
+            zz.numpy(),
+            far32,
+            antialiased,
+            fac_v.numpy(),
+            g_m2.numpy(),
+            g_cov.numpy(),
+            g_op.numpy(),
+            g_col.numpy(),
+            g_z.numpy(),
+        )
+        return (
+            g_m2,
+            g_cov,
+            g_op if want_op else None,
+            g_col if want_col else None,
+            g_z,
+            *(None,) * 9,
+        )
 
 
 def composite(
     means2d: torch.Tensor,
-    conic: torch.Tensor,
+    cov: torch.Tensor,
     opac: torch.Tensor,
-    feat: torch.Tensor,
+    colors: torch.Tensor,
+    z: torch.Tensor,
+    vis: torch.Tensor,
     gid: torch.Tensor,
     tile_start: torch.Tensor,
     width: int,
     height: int,
     tiles_x: int,
     stats: bool,
+    antialiased: bool = False,
+    depth_far_m: float | None = None,
 ) -> tuple[torch.Tensor, ...]:
-    """acc [H*W, 4], T_final [H*W], and (stats) coverage, hit_count, max_weight [N]; differentiable in
-    means2d [N, 2], conic [N, 3] (a, b, c of the inverse covariance), opac [N] and feat [N, 4]."""
-    return _Composite.apply(means2d, conic, opac, feat, gid, tile_start, width, height, tiles_x, stats)
+    """acc [H*W, 4] (colour, painted depth), T_final [H*W], and (stats) coverage, hit_count, max_weight [N] (zero
+    out of view) of the Gaussians ``vis`` [V] in view; differentiable in the map's means2d [N, 2], screen
+    covariances cov [N, 3] (a, b, c), opacities opac [N], colours colors [N, 3] and depths z [N]. The opacities
+    are scaled by ``raster.antialias_compensation`` where ``antialiased``; a Gaussian at ``depth_far_m`` or
+    farther paints depth 0 (``raster._paint_depth``). ``gid`` holds pair indices into ``vis``."""
+    far = np.inf if depth_far_m is None else depth_far_m
+    return _Composite.apply(
+        means2d, cov, opac, colors, z, vis, gid, tile_start, width, height, tiles_x, stats, antialiased, far
+    )

@@ -21,6 +21,7 @@ from bench.slam.raster_fused.criteria_stats import criteria_extra
 from bench.slam.raster_fused.projection import project_bwd, project_fwd, sum_rows
 from bench.slam.raster_fused.ssim import ssim_bwd, ssim_fwd
 from bench.slam.raster_fused.threads import use_threading_layer
+from bench.slam.raster_fused.view import gather_view, scatter_view
 
 _COMPILING_ENV = "POCKETBENCH_COMPILING_KERNELS"
 _cache_checked = False
@@ -48,12 +49,14 @@ def load_from_cache() -> None:
             in_view_kernel,
             depth_order,
             bin_pairs_kernel,
+            gather_view,
             pack,
             tile_schedule,
             composite_fwd,
             composite_bwd,
             reduce_sum,
             reduce_stats,
+            scatter_view,
             criteria_extra,
             ssim_fwd,
             ssim_bwd,
@@ -68,6 +71,7 @@ def load_from_cache() -> None:
     subprocess.run(
         [sys.executable, "-c", "from bench.slam.raster_fused import compile_kernels; compile_kernels()"],
         env=env,
+        cwd=root,  # python -c puts the working dir first on sys.path: another checkout's bench there would compile
         capture_output=True,
         check=False,
     )

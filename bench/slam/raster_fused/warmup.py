@@ -33,13 +33,10 @@ def compile_kernels() -> None:
         m2, cov, z, rect, _, _ = project(m, ls, q, w2c, K, size, size, 0.2, tiles, tiles)
         vis = in_view(rect)
         tile_start, gid = bin_pairs(rect.index_select(0, vis), z.index_select(0, vis), tiles * tiles, tiles)
-        feat = torch.cat([col.index_select(0, vis), z.index_select(0, vis)[:, None]], 1)  # [V, 4]
-        inv = conic(*cov.index_select(0, vis).unbind(-1))  # [V, 3]
-        acc, t_final, *_ = composite(
-            m2.index_select(0, vis), inv, op.index_select(0, vis), feat, gid, tile_start, size, size, tiles, stats
-        )
+        acc, t_final, *_ = composite(m2, cov, op, col, z, vis, gid, tile_start, size, size, tiles, stats, stats, 50.0)
         (acc.sum() + t_final.sum()).backward()
         if stats:  # the pruning criteria's statistics (rasterize(extra=...))
+            inv = conic(*cov.index_select(0, vis).unbind(-1))  # [V, 3]
             extra_stats(
                 m2.index_select(0, vis),
                 inv,
