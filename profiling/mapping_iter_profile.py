@@ -9,11 +9,12 @@ around each part:
 - ``projection``: the projection kernel and the in-view index (``raster._front_fused``);
 - ``binning``: the depth sort and the (tile, Gaussian) pair list (``raster_fused.bin_pairs``);
 - ``fwd_kernel`` / ``fwd_glue``: the compositing forward kernel, and the rest of the compositing
-  function (buffers, packing the Gaussians, the tile schedule, the statistics' reductions);
-- ``render_glue``: what the fused render does around them in torch (selecting the Gaussians in
-  view, the conic, the antialiasing factor, the features, the output images);
+  function (gathering the Gaussians in view with their conic, antialiasing factor and features,
+  buffers, packing them, the tile schedule, the statistics' reductions);
+- ``render_glue``: what the fused render does around them in torch (the output images);
 - ``bwd_kernel`` / ``bwd_glue``: the compositing backward kernel, and the rest of its function
-  (buffers, schedule, the per-pair gradients summed per Gaussian);
+  (buffers, schedule, the per-pair gradients summed per Gaussian, chained through the conic and
+  the antialiasing factor and scattered back to the map's rows);
 - ``proj_bwd``: the projection's hand-written backward;
 - ``loss_ssim``, ``loss_depth``: the D-SSIM term and the depth L1 (the colour L1 is a line of
   ``_optimize``, billed to ``python``);
