@@ -2,10 +2,14 @@
 backward that chains the compositing's per-Gaussian gradients through both and scatters them back to [N].
 
 What torch did here before (index selects, the conic's and the factor's element-wise ops, and their autograd:
-zero-filled [N] gradients plus index additions) came to about a tenth of a mapping iteration on a real map.
+zero-filled [N] gradients plus index additions, and the intermediates it kept) cost more time and memory than
+these two passes (reports/speed/2026-11-29-view-kernels.md).
+
 The forward computes each quantity with the operations of ``bench.slam.conic.conic`` and
-``raster.antialias_compensation``, in the same order, and without fastmath, so that it gives their values bit
-for bit; the backward gives torch's gradients up to float32 rounding (another order of the same sums).
+``raster.antialias_compensation``, in the same order and without fastmath: the same values as torch's, but for
+the antialiasing factor, whose square root torch's vectorised float32 code does not round correctly on every host
+(it may differ in the last place). The backward gives torch's gradients up to float32 rounding (another order of
+the same sums).
 """
 
 from __future__ import annotations
