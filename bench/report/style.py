@@ -15,7 +15,7 @@ from __future__ import annotations
 import re
 import textwrap
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -276,13 +276,16 @@ def fig_title(fig: Figure, text: str) -> None:
     fig.suptitle(textwrap.fill(text, width_chars), x=0.01, ha="left", fontsize=11)
 
 
-def strategy_keys(panels: Sequence[Panel], known: Sequence[str], several_styles: bool = True) -> list[Line2D]:
-    """Legend entries: one per strategy (its colour) and one per keep-ratio style in use."""
+def strategy_keys(
+    panels: Sequence[Panel], known: Sequence[str], several_styles: bool = True, shown: Collection[Variant] | None = None
+) -> list[Line2D]:
+    """Legend entries: one per strategy (its colour) and one per schedule style in use; with ``shown``, only for
+    the variants a figure drew (styles and names still from the whole panel, as in the report's other figures)."""
     handles: list[Line2D] = []
     strategies = []
     for panel in panels:
         for v in panel.variants:
-            if v.strategy not in strategies:
+            if v.strategy not in strategies and (shown is None or v in shown):
                 strategies.append(v.strategy)
     order = sorted(strategies, key=lambda s: (STRATEGY_ORDER.index(s) if s in STRATEGY_ORDER else 99, s))
     for s in order:
@@ -290,6 +293,8 @@ def strategy_keys(panels: Sequence[Panel], known: Sequence[str], several_styles:
     if several_styles:
         for panel in panels:
             for v in panel.variants:
+                if shown is not None and v not in shown:
+                    continue
                 ls, marker = ratio_style(v, panel)
                 if (ls, marker) != RATIO_STYLES[0] or sum(u.strategy == v.strategy for u in panel.variants) > 1:
                     handles.append(key(series_label(v, panel), strategy_colour(v.strategy, known), ls, marker))

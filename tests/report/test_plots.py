@@ -232,3 +232,31 @@ def test_absolute_targets_that_differ_in_floor_or_parameters_are_labelled_and_dr
     usual = next(v for v in pockets if v.label == "pocket")
     assert ratio_style(usual, sweep) == ratio_style(usual, main) == RATIO_STYLES[0]
     assert [v.label for v in policy.variants] == ["pocket", "p-disk"]  # today's run at the same schedule only
+
+
+def test_a_figure_that_draws_some_variants_names_and_styles_them_as_the_others_do() -> None:
+    """The pareto figure draws only variants with a measured peak (every run of one lost: none); its legend
+    leaves the lost one out but keeps the others' styles and names from the whole panel."""
+    from matplotlib.lines import Line2D
+
+    from bench.report.style import series_label, strategy_keys
+
+    target, floor = "N_tar 166223/Mpx", "N_tar 166223/Mpx, floor 1/px"
+    found = [Variant("none", None, "none", "default"), Variant("pocket", None, "p-floor", "default", pruning=floor)]
+    found += [
+        Variant("pocket", None, "p-lost", "default", pruning=target),
+        Variant("pocket", None, "p-random", "default", pruning=floor + ", rank=random"),
+    ]
+    panels = panel_groups(found)
+    shown = [v for v in found if v.label != "p-lost"]
+    keys = strategy_keys(panels, ["none", "pocket"], shown=shown)
+    labels = [k.get_label() for k in keys]
+    sweep = next(p for p in panels if len(p.variants) > 2)
+    lost = next(v for v in sweep.variants if v.label == "p-lost")
+    assert series_label(lost, sweep) not in labels
+    for v in (v for v in sweep.variants if v.strategy == "pocket" and v.label != "p-lost"):
+        entry = keys[labels.index(series_label(v, sweep))]
+        assert (entry.get_linestyle(), entry.get_marker()) == (
+            Line2D([], [], ls=ratio_style(v, sweep)[0]).get_linestyle(),
+            ratio_style(v, sweep)[1],
+        )

@@ -50,7 +50,9 @@ def plot_pareto(runs: pd.DataFrame, dataset: str, out: Path, seq: str | None = N
         mem, covered = dataset_average(variant_runs(runs, variant), "peak_mem_mib")
         if mem is not None:
             memory[variant] = (mem, covered)
-    panels = [p for p in panel_groups(list(memory)) if p.variants]
+    # the panels of every variant, so that a variant keeps the style and legend name it has in the report's other
+    # figures; those without a measured peak (every run lost) are not drawn
+    panels = [p for p in panel_groups(variants(runs)) if any(v in memory for v in p.variants)]
     if not panels:
         return None
     metrics = (("ate_rmse_m", "ATE [m]\n(lower is better)", True), ("psnr_db", "PSNR [dB]\n(higher is better)", False))
@@ -63,6 +65,8 @@ def plot_pareto(runs: pd.DataFrame, dataset: str, out: Path, seq: str | None = N
             ax = axes[r, c]
             full: list[tuple[float, float]] = []
             for variant in panel.variants:
+                if variant not in memory:
+                    continue
                 mem, mem_covered = memory[variant]
                 vr = variant_runs(runs, variant)
                 value, covered = dataset_average(vr, metric)
@@ -111,7 +115,7 @@ def plot_pareto(runs: pd.DataFrame, dataset: str, out: Path, seq: str | None = N
                 ax.set_ylabel(title)
         axes[0, c].set_title(panel.title or dataset_name(dataset))
         axes[-1, c].set_xlabel("peak memory [MiB]")
-    handles = strategy_keys(panels, known)
+    handles = strategy_keys(panels, known, shown=set(memory))
     if fronts:
         handles.append(key("dashed: Pareto front of the panel", "grey", "--"))
     if most_seeds >= 2:
