@@ -377,31 +377,31 @@ def _render_fused(
     else:  # nothing in view: constant images that carry no gradient, as the torch backend returns
         acc, t_final = torch.zeros(width * height, 4), torch.ones(width * height)
         coverage, hit_count, max_weight = torch.zeros(n), torch.zeros(n, dtype=torch.int64), torch.zeros(n)
-    ex = torch.zeros(n, 5)
-    if extra and gid.numel():
-        from bench.slam.raster_fused.criteria_stats import extra_stats
-
-        with torch.no_grad():  # forward-only statistics of the Gaussians in view, as the compositing sees them
-            cov_vis = ff.cov.index_select(0, vis)  # [V, 3]
-            op_v = opacities.index_select(0, vis)  # [V]
-            if antialiased:
-                op_v = op_v * antialias_compensation(cov_vis).to(op_v.dtype)
-            ex[vis] = extra_stats(
-                ff.means2d.index_select(0, vis),
-                conic(*cov_vis.unbind(-1)),
-                op_v,
-                colors.index_select(0, vis),
-                gid,
-                tile_start,
-                width,
-                height,
-                ff.tiles_x,
-                float(bg.sum()),
-                "alpha_grad_sq" in extra,
-            )
     dtype = colors.dtype
     ext = {}
     if extra:
+        ex = torch.zeros(n, 5)  # [N, 5]: zero out of view
+        if gid.numel():
+            from bench.slam.raster_fused.criteria_stats import extra_stats
+
+            with torch.no_grad():  # forward-only statistics of the Gaussians in view, as the compositing sees them
+                cov_vis = ff.cov.index_select(0, vis)  # [V, 3]
+                op_v = opacities.index_select(0, vis)  # [V]
+                if antialiased:
+                    op_v = op_v * antialias_compensation(cov_vis).to(op_v.dtype)
+                ex[vis] = extra_stats(
+                    ff.means2d.index_select(0, vis),
+                    conic(*cov_vis.unbind(-1)),
+                    op_v,
+                    colors.index_select(0, vis),
+                    gid,
+                    tile_start,
+                    width,
+                    height,
+                    ff.tiles_x,
+                    float(bg.sum()),
+                    "alpha_grad_sq" in extra,
+                )
         cols = {
             "weight_sum": ex[:, 0],
             "opacity_t_sum": ex[:, 1],
