@@ -437,3 +437,15 @@ def test_criteria_statistics_only_when_asked():
         assert out.top1_count is None and out.weight_sum is None
     with pytest.raises(ConfigError, match="expected among weight_sum, top1, alpha_grad_sq, found nope"):
         rasterize(*params, se3_exp(POSE), K, W, H, extra=("nope",))
+
+
+def test_the_kernels_float32_constants_are_the_torch_backends() -> None:
+    """raster_fused/constants.py holds float32 twins of raster's conventions; a change to one must reach the other."""
+    import numpy as np
+
+    from bench.slam import raster
+    from bench.slam.raster_fused import constants
+
+    assert constants.TILE == raster.TILE_PX
+    for name in ("ALPHA_MIN", "ALPHA_MAX", "T_MIN", "LOWPASS_PX2"):
+        assert getattr(constants, name) == np.float32(getattr(raster, name)), name

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from bench.slam.raster_fused.constants import F32, TILE
+from bench.slam.raster_fused.constants import F32, LOWPASS_PX2, TILE
 
 
 @njit(cache=True, inline="always")
@@ -127,9 +127,9 @@ def project_fwd(
         u10 = (t10 * r00 + t11 * r10 + t12 * r20) * s0
         u11 = (t10 * r01 + t11 * r11 + t12 * r21) * s1
         u12 = (t10 * r02 + t11 * r12 + t12 * r22) * s2
-        a = u00 * u00 + u01 * u01 + u02 * u02 + F32(0.3)
+        a = u00 * u00 + u01 * u01 + u02 * u02 + LOWPASS_PX2
         b = u00 * u10 + u01 * u11 + u02 * u12
-        c = u10 * u10 + u11 * u11 + u12 * u12 + F32(0.3)
+        c = u10 * u10 + u11 * u11 + u12 * u12 + LOWPASS_PX2
         cov[i, 0], cov[i, 1], cov[i, 2] = a, b, c
         det = a * c - b * b
         mid = F32(0.5) * (a + c)

@@ -17,9 +17,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from bench.slam.raster_fused.constants import F32
+from bench.slam.raster_fused.constants import F32, LOWPASS_PX2
 
-LOWPASS_PX2 = F32(0.3)  # raster.LOWPASS_PX2, the 0.3 px low-pass the screen covariances hold
 _EPS = F32(1e-12)  # antialias_compensation's clamps
 
 
